@@ -1,0 +1,91 @@
+"""The one agent protocol that AdaptiveH, the fixed-H RKHS learner and the TD3/DDPG adapters honour.
+
+Like stable-baselines3: an agent is built around a gymnasium env and ``learn(total_steps)`` drives it.
+Every agent records the same ``RunLog`` so that benchmarks, the CLI and the deployed learner node
+treat them alike.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass
+class EpisodeRecord:
+    """One finished episode: its return, length, the global step at its end, and env info."""
+
+    episode: int
+    global_step: int
+    ret: float
+    length: int
+    success: bool | None = None
+    info: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class SegmentRecord:
+    """One action segment of an RKHS learner: its length H and why it ended."""
+
+    index: int
+    global_step: int
+    H: int
+    reason: str  # retreat | h_max | episode_end
+    statistic: list[float] = field(default_factory=list)
+    threshold: float = 0.0
+
+
+@dataclass
+class RunLog:
+    """What every agent's ``learn`` accumulates."""
+
+    episodes: list[EpisodeRecord] = field(default_factory=list)
+    segments: list[SegmentRecord] = field(default_factory=list)
+    global_step: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "global_step": self.global_step,
+            "episodes": [asdict(e) for e in self.episodes],
+            "segments": [asdict(s) for s in self.segments],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunLog:
+        return cls(
+            episodes=[EpisodeRecord(**e) for e in data.get("episodes", [])],
+            segments=[SegmentRecord(**s) for s in data.get("segments", [])],
+            global_step=int(data.get("global_step", 0)),
+        )
+
+
+# Called after every environment step with (global_step, run_log); returning False stops learning.
+StepCallback = Callable[[int, RunLog], bool | None]
+
+
+@runtime_checkable
+class Agent(Protocol):
+    """What every learner offers."""
+
+    name: str
+    log: RunLog
+
+    def learn(self, total_steps: int, callback: StepCallback | None = None) -> RunLog:
+        """Interact with the env for ``total_steps`` more steps, learning as it goes."""
+        ...
+
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        """The action the current policy takes at ``obs``."""
+        ...
+
+    def save(self, path: str | Path) -> None:
+        """Write the agent's full state (policy, critic, RNG, log) to one file."""
+        ...
+
+    def load(self, path: str | Path) -> None:
+        """Restore the state written by ``save``; learning continues as if never interrupted."""
+        ...
