@@ -1,0 +1,214 @@
+"""AdaptiveH (the paper's algorithm box) and the fixed-H RKHS learner, which is AdaptiveH with the
+retreat check off and a segment every ``fixed_h`` steps.
+
+Per step: sample ``a ~ π(·|s)`` from the segment's policy, step the env, fit the critic, form the
+functional gradient ``g_t = c · Â_t · score(s_t, a_t)`` (eq. 8, ``c = 1/(1-γ)``, ``Â`` the critic's
+advantage — a TD error for the default value critic, i.e. Q̂ with the state baseline ``V`` removed,
+which keeps the gradient unbiased), and EVAL the retreat statistic. A retreat, ``h_max`` or the episode's
+end closes the segment: UPDATE ``h`` with the segment's gradients, SPARSIFY, and open a new segment.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from learner.config import AdaptiveHConfig
+from learner.critic import KLSTDCritic
+from learner.kernels import GaussianKernel
+from learner.normalizer import StateNormalizer
+from learner.policy import RKHSGaussianPolicy
+from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
+from learner.retreat import RetreatCheck, default_threshold
+
+
+def _info_scalars(info: dict) -> dict[str, float]:
+    out = {}
+    for k, v in info.items():
+        if isinstance(v, (bool, np.bool_)):
+            out[k] = float(v)
+        elif isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v):
+            out[k] = float(v)
+    return out
+
+
+class AdaptiveH:
+    """The AdaptiveH agent. ``retreat`` in the config chooses the statistic (``off`` = fixed H)."""
+
+    name = "adaptiveh"
+
+    def __init__(self, env: gym.Env, config: AdaptiveHConfig | None = None, seed: int = 0):
+        self.env = env
+        self.config = config or AdaptiveHConfig()
+        self.seed = seed
+        cfg = self.config
+        if not isinstance(env.action_space, gym.spaces.Box):
+            raise ValueError("the RKHS learner needs a continuous (Box) action space")
+        self.normalize = StateNormalizer.for_env(env)
+        dim = len(self.normalize.centre)
+        self.kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
+        low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
+        self.policy = RKHSGaussianPolicy(
+            self.kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
+        )
+        self.critic = KLSTDCritic(
+            self.kernel, cfg.gamma, cfg.critic_budget, cfg.critic_ald, cfg.critic_forgetting,
+            cfg.critic_p0, cfg.critic, len(low),
+        )
+        threshold = cfg.retreat_threshold
+        if threshold is None:
+            threshold = default_threshold(cfg.retreat, self.kernel, cfg.epsilon)
+        self.retreat = RetreatCheck(self.kernel, cfg.retreat, threshold, cfg.retreat_window)
+        self.segment_limit = cfg.h_max if cfg.retreat != "off" else cfg.fixed_h
+        self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
+        self.rng = np.random.default_rng(seed)
+        self.log = RunLog()
+        self.nonfinite_skipped = 0
+        self._obs: np.ndarray | None = None
+        self._ep_return = 0.0
+        self._ep_len = 0
+        self._episode_seed = seed
+
+    # -- acting ---------------------------------------------------------------------------------
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        s = self.normalize(obs)
+        if deterministic:
+            return np.clip(self.policy.mean(s), self.policy.low, self.policy.high)
+        return self.policy.sample(s, self.rng)[0]
+
+    # -- learning -------------------------------------------------------------------------------
+    def learn(self, total_steps: int, callback: StepCallback | None = None) -> RunLog:
+        for _ in range(total_steps):
+            self.step_env()
+            if callback is not None and callback(self.log.global_step, self.log) is False:
+                break
+        return self.log
+
+    def step_env(self) -> SegmentRecord | None:
+        """One environment step; returns the segment record when this step closed a segment."""
+        if self._obs is None:
+            self._reset_episode()
+        obs = self._obs
+        s = self.normalize(obs)
+        action, raw = self.policy.sample(s, self.rng)
+        next_obs, reward, terminated, truncated, info = self.env.step(action)
+        self.log.global_step += 1
+        self._ep_return += float(reward)
+        self._ep_len += 1
+        episode_over = terminated or truncated
+        record = self._learn_from(s, raw, float(reward), next_obs, terminated, episode_over)
+        if episode_over:
+            self._finish_episode(info)
+        else:
+            self._obs = np.asarray(next_obs, float)
+        return record
+
+    def _learn_from(self, s: np.ndarray, raw: np.ndarray, reward: float, next_obs: np.ndarray,
+                    terminated: bool, episode_over: bool) -> SegmentRecord | None:
+        s_next = self.normalize(next_obs)
+        if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
+            # A NaN must never reach the dictionaries: drop the sample and close the segment.
+            self.nonfinite_skipped += 1
+            return self._close_segment("episode_end" if episode_over else "retreat")
+        score = self.policy.score(s, raw)
+        advantage = self.critic.update(s, reward, s_next, terminated, score)
+        g = self.grad_scale * advantage * score
+        norm = float(np.linalg.norm(g))
+        if not np.isfinite(norm):
+            self.nonfinite_skipped += 1
+            return self._close_segment("retreat")
+        if norm > self.config.max_grad_norm:
+            g *= self.config.max_grad_norm / norm
+        retreat = self.retreat.push(s, g)
+        if retreat:
+            return self._close_segment("retreat")
+        if len(self.retreat.states) >= self.segment_limit:
+            return self._close_segment("h_max")
+        if episode_over:
+            return self._close_segment("episode_end")
+        return None
+
+    def _close_segment(self, reason: str) -> SegmentRecord | None:
+        states, grads = self.retreat.states, self.retreat.grads
+        if not states:
+            return None
+        self.policy.update(states, grads, self.config.alpha, self.config.weight_decay)
+        record = SegmentRecord(
+            index=len(self.log.segments), global_step=self.log.global_step, H=len(states), reason=reason,
+            statistic=[float(x) for x in self.retreat.trace], threshold=float(self.retreat.threshold),
+        )
+        self.log.segments.append(record)
+        self.retreat.reset()
+        return record
+
+    def _reset_episode(self) -> None:
+        obs, _ = self.env.reset(seed=self._episode_seed)
+        self._episode_seed += 1
+        self._obs = np.asarray(obs, float)
+        self._ep_return, self._ep_len = 0.0, 0
+
+    def _finish_episode(self, info: dict) -> None:
+        scalars = _info_scalars(info)
+        success = scalars.get("is_success", scalars.get("success"))
+        self.log.episodes.append(EpisodeRecord(
+            episode=len(self.log.episodes), global_step=self.log.global_step, ret=self._ep_return,
+            length=self._ep_len, success=None if success is None else bool(success), info=scalars,
+        ))
+        self._obs = None
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        env_state = None
+        get_state = getattr(self.env.unwrapped, "get_state", None)
+        if callable(get_state):
+            env_state = get_state()
+        return {
+            "name": self.name, "config": self.config.to_dict(), "seed": self.seed,
+            "policy": self.policy.f.state_dict(), "critic": self.critic.state_dict(),
+            "rng": self.rng.bit_generator.state, "log": self.log.to_dict(),
+            "retreat": (self.retreat.states, self.retreat.grads, self.retreat.trace),
+            "obs": self._obs, "ep": (self._ep_return, self._ep_len, self._episode_seed),
+            "nonfinite_skipped": self.nonfinite_skipped, "env": env_state,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["name"] != self.name:
+            raise ValueError(f"checkpoint is for {state['name']!r}, not {self.name!r}")
+        self.policy.f.load_state_dict(state["policy"])
+        self.critic.load_state_dict(state["critic"])
+        self.rng.bit_generator.state = state["rng"]
+        self.log = RunLog.from_dict(state["log"])
+        self.retreat.states, self.retreat.grads, self.retreat.trace = (list(x) for x in state["retreat"])
+        self._obs = state["obs"]
+        self._ep_return, self._ep_len, self._episode_seed = state["ep"]
+        self.nonfinite_skipped = state["nonfinite_skipped"]
+        set_state = getattr(self.env.unwrapped, "set_state", None)
+        if state["env"] is not None and callable(set_state):
+            set_state(state["env"])
+        else:
+            self._obs = None  # the env cannot be restored: resume at a fresh episode
+
+    def save(self, path: str | Path) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        with open(tmp, "wb") as fh:
+            pickle.dump(self.state_dict(), fh)
+        tmp.replace(path)  # atomic: a crash mid-write never corrupts the last checkpoint
+
+    def load(self, path: str | Path) -> None:
+        with open(path, "rb") as fh:
+            self.load_state_dict(pickle.load(fh))
+
+
+class RKHSFixedH(AdaptiveH):
+    """The paper's RKHS baseline: the same learner, retreat check off, an update every ``fixed_h`` steps."""
+
+    name = "rkhs"
+
+    def __init__(self, env: gym.Env, config: AdaptiveHConfig | None = None, seed: int = 0):
+        cfg = AdaptiveHConfig(**{**(config or AdaptiveHConfig()).to_dict(), "retreat": "off"})
+        super().__init__(env, cfg, seed)

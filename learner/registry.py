@@ -1,0 +1,26 @@
+"""``make_agent``: one constructor for every algorithm the CLI and benchmarks run."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+from learner.protocol import Agent
+
+ALGOS = ("adaptiveh", "rkhs", "td3", "ddpg")
+
+
+def make_agent(algo: str, env: gym.Env, seed: int = 0, config: dict[str, Any] | None = None) -> Agent:
+    """Build ``algo`` on ``env``; ``config`` holds the algorithm's hyperparameters (validated)."""
+    if algo in ("adaptiveh", "rkhs"):
+        from learner.adaptiveh import AdaptiveH, RKHSFixedH
+        from learner.config import AdaptiveHConfig
+
+        cls = AdaptiveH if algo == "adaptiveh" else RKHSFixedH
+        return cls(env, AdaptiveHConfig(**(config or {})), seed)
+    if algo in ("td3", "ddpg"):
+        from learner.baselines import SB3Agent, SB3Config
+
+        return SB3Agent(algo, env, SB3Config(**(config or {})), seed)
+    raise ValueError(f"unknown algo {algo!r}; choose one of {ALGOS}")

@@ -1,0 +1,69 @@
+"""Bounded drift signals on a global step clock: the hidden non-stationarity of every environment.
+
+The clock counts environment steps and never resets with episodes; the signal is seeded, so a seed
+reproduces the whole run. Value = clip(base + amplitude·sin(2πt/period + phase) + walk + jump, low, high)
+where ``walk`` is a reflected Gaussian random walk and ``jump`` a piecewise-constant offset redrawn
+every ``jump_every`` steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass
+class DriftConfig:
+    base: float
+    low: float
+    high: float
+    amplitude: float = 0.0
+    period: int = 10_000
+    walk_std: float = 0.0
+    jump_every: int = 0  # 0: no jumps
+    jump_size: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.low <= self.base <= self.high:
+            raise ValueError(f"base {self.base} must lie in [low, high] = [{self.low}, {self.high}]")
+        if self.period < 1:
+            raise ValueError(f"period must be >= 1 step, got {self.period}")
+        if min(self.amplitude, self.walk_std, self.jump_every, self.jump_size) < 0:
+            raise ValueError("amplitude, walk_std, jump_every and jump_size must be >= 0")
+
+
+class DriftSchedule:
+    def __init__(self, config: DriftConfig, seed: int):
+        self.config = config
+        self.rng = np.random.default_rng(seed)
+        self.phase = float(self.rng.uniform(0.0, 2.0 * np.pi)) if config.amplitude > 0 else 0.0
+        self.t = 0
+        self.walk = 0.0
+        self.jump = 0.0
+
+    @property
+    def value(self) -> float:
+        c = self.config
+        wave = c.amplitude * np.sin(2.0 * np.pi * self.t / c.period + self.phase)
+        return float(np.clip(c.base + wave + self.walk + self.jump, c.low, c.high))
+
+    def advance(self) -> None:
+        """One tick of the global clock."""
+        c = self.config
+        self.t += 1
+        if c.walk_std > 0:
+            half = (c.high - c.low) / 2.0
+            self.walk += float(self.rng.normal(0.0, c.walk_std))
+            if abs(self.walk) > half:  # reflect so the walk stays within the band
+                self.walk = float(np.sign(self.walk) * (2 * half - abs(self.walk)))
+        if c.jump_every and self.t % c.jump_every == 0:
+            self.jump = float(self.rng.uniform(-c.jump_size, c.jump_size))
+
+    def get_state(self) -> dict:
+        return {"rng": self.rng.bit_generator.state, "t": self.t, "walk": self.walk, "jump": self.jump,
+                "phase": self.phase, "config": asdict(self.config)}
+
+    def set_state(self, state: dict) -> None:
+        self.rng.bit_generator.state = state["rng"]
+        self.t, self.walk, self.jump, self.phase = state["t"], state["walk"], state["jump"], state["phase"]
