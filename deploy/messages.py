@@ -216,8 +216,18 @@ class ResetReply(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.__name__: cls
     for cls in (
-        RobotState, Target, CameraFrame, AnnotatedImage, ActionChunk, ChunkStatus, RetreatEvent,
-        SafetyEvent, LearnerTelemetry, Control, ResetRequest, ResetReply,
+        RobotState,
+        Target,
+        CameraFrame,
+        AnnotatedImage,
+        ActionChunk,
+        ChunkStatus,
+        RetreatEvent,
+        SafetyEvent,
+        LearnerTelemetry,
+        Control,
+        ResetRequest,
+        ResetReply,
     )
 }
 

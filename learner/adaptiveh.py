@@ -55,8 +55,14 @@ class AdaptiveH:
             self.kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
         )
         self.critic = KLSTDCritic(
-            self.kernel, cfg.gamma, cfg.critic_budget, cfg.critic_ald, cfg.critic_forgetting,
-            cfg.critic_p0, cfg.critic, len(low),
+            self.kernel,
+            cfg.gamma,
+            cfg.critic_budget,
+            cfg.critic_ald,
+            cfg.critic_forgetting,
+            cfg.critic_p0,
+            cfg.critic,
+            len(low),
         )
         threshold = cfg.retreat_threshold
         if threshold is None:
@@ -106,8 +112,15 @@ class AdaptiveH:
             self._obs = np.asarray(next_obs, float)
         return record
 
-    def _learn_from(self, s: np.ndarray, raw: np.ndarray, reward: float, next_obs: np.ndarray,
-                    terminated: bool, episode_over: bool) -> SegmentRecord | None:
+    def _learn_from(
+        self,
+        s: np.ndarray,
+        raw: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        episode_over: bool,
+    ) -> SegmentRecord | None:
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
             # A NaN must never reach the dictionaries: drop the sample and close the segment.
@@ -137,8 +150,12 @@ class AdaptiveH:
             return None
         self.policy.update(states, grads, self.config.alpha, self.config.weight_decay)
         record = SegmentRecord(
-            index=len(self.log.segments), global_step=self.log.global_step, H=len(states), reason=reason,
-            statistic=[float(x) for x in self.retreat.trace], threshold=float(self.retreat.threshold),
+            index=len(self.log.segments),
+            global_step=self.log.global_step,
+            H=len(states),
+            reason=reason,
+            statistic=[float(x) for x in self.retreat.trace],
+            threshold=float(self.retreat.threshold),
         )
         self.log.segments.append(record)
         self.retreat.reset()
@@ -153,10 +170,16 @@ class AdaptiveH:
     def _finish_episode(self, info: dict) -> None:
         scalars = _info_scalars(info)
         success = scalars.get("is_success", scalars.get("success"))
-        self.log.episodes.append(EpisodeRecord(
-            episode=len(self.log.episodes), global_step=self.log.global_step, ret=self._ep_return,
-            length=self._ep_len, success=None if success is None else bool(success), info=scalars,
-        ))
+        self.log.episodes.append(
+            EpisodeRecord(
+                episode=len(self.log.episodes),
+                global_step=self.log.global_step,
+                ret=self._ep_return,
+                length=self._ep_len,
+                success=None if success is None else bool(success),
+                info=scalars,
+            )
+        )
         self._obs = None
 
     # -- checkpoints ----------------------------------------------------------------------------
@@ -166,12 +189,18 @@ class AdaptiveH:
         if callable(get_state):
             env_state = get_state()
         return {
-            "name": self.name, "config": self.config.to_dict(), "seed": self.seed,
-            "policy": self.policy.f.state_dict(), "critic": self.critic.state_dict(),
-            "rng": self.rng.bit_generator.state, "log": self.log.to_dict(),
+            "name": self.name,
+            "config": self.config.to_dict(),
+            "seed": self.seed,
+            "policy": self.policy.f.state_dict(),
+            "critic": self.critic.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "log": self.log.to_dict(),
             "retreat": (self.retreat.states, self.retreat.grads, self.retreat.trace),
-            "obs": self._obs, "ep": (self._ep_return, self._ep_len, self._episode_seed),
-            "nonfinite_skipped": self.nonfinite_skipped, "env": env_state,
+            "obs": self._obs,
+            "ep": (self._ep_return, self._ep_len, self._episode_seed),
+            "nonfinite_skipped": self.nonfinite_skipped,
+            "env": env_state,
         }
 
     def load_state_dict(self, state: dict) -> None:

@@ -75,7 +75,9 @@ class SB3Config:
         if self.learning_starts < 0:
             raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
         if self.gradient_steps == 0 or self.gradient_steps < -1:
-            raise ValueError(f"gradient_steps must be -1 (as many as env steps) or >= 1, got {self.gradient_steps}")
+            raise ValueError(
+                f"gradient_steps must be -1 (as many as env steps) or >= 1, got {self.gradient_steps}"
+            )
         if self.noise_std < 0.0:
             raise ValueError(f"noise_std must be >= 0, got {self.noise_std}")
         if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
@@ -115,6 +117,7 @@ class _RecordCallback(BaseCallback):
         self.agent = agent
         self.stop_at = stop_at
         self.user = user
+        self.pending_train_steps = 0
 
     def _on_step(self) -> bool:
         agent = self.agent
@@ -135,17 +138,37 @@ class _RecordCallback(BaseCallback):
                 )
             )
             agent._ep_return, agent._ep_length = 0.0, 0
-        keep_going = True
-        if self.user is not None and self.user(step, agent.log) is False:
-            keep_going = False
-        return keep_going and step < self.stop_at
+        keep_going = not (self.user is not None and self.user(step, agent.log) is False)
+        if keep_going and step < self.stop_at:
+            return True
+        self._finish_step()
+        return False
+
+    def _finish_step(self) -> None:
+        """Do SB3's post-step bookkeeping that returning False would skip.
+
+        SB3 checks the callback before it stores the transition and advances ``_last_obs``; without
+        this the last transition of every ``learn`` call would be lost and the next call would act on
+        a stale observation.
+        """
+        loc, model = self.locals, self.model
+        dones = loc["dones"]
+        model._update_info_buffer(loc["infos"], dones)
+        model._store_transition(
+            loc["replay_buffer"], loc["buffer_actions"], loc["new_obs"], loc["rewards"], dones, loc["infos"]
+        )
+        if bool(np.asarray(dones).reshape(-1)[0]):
+            model._episode_num += 1
+            if model.action_noise is not None:
+                model.action_noise.reset()
+        self.pending_train_steps = int(loc["num_collected_steps"])
 
 
 class SB3Agent:
     """TD3 or DDPG (stable-baselines3) on one gymnasium env, honouring ``learner.protocol.Agent``."""
 
     def __init__(
-        self, algo: str, env: gym.Env, seed: int, config: SB3Config | dict[str, Any] | None = None
+        self, algo: str, env: gym.Env, config: SB3Config | dict[str, Any] | None = None, seed: int = 0
     ) -> None:
         if algo not in ALGOS:
             raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {algo!r}")
@@ -192,12 +215,18 @@ class SB3Agent:
             return self.log
         torch.set_num_threads(self.config.torch_threads)
         stop_at = int(self.model.num_timesteps) + int(total_steps)
+        recorder = _RecordCallback(self, stop_at, callback)
         self.model.learn(
-            total_timesteps=int(total_steps),
-            callback=_RecordCallback(self, stop_at, callback),
-            reset_num_timesteps=False,
-            progress_bar=False,
+            total_timesteps=int(total_steps), callback=recorder, reset_num_timesteps=False, progress_bar=False
         )
+        # The rollout cut at the budget was never trained on; give it its gradient steps now so that
+        # an agent that learned N steps has trained on N steps whether or not it was split.
+        model = self.model
+        if recorder.pending_train_steps and model.num_timesteps > model.learning_starts:
+            steps = (
+                recorder.pending_train_steps if self.config.gradient_steps < 0 else self.config.gradient_steps
+            )
+            model.train(gradient_steps=steps, batch_size=self.config.batch_size)
         self.log.global_step = int(self.model.num_timesteps)
         return self.log
 
@@ -213,6 +242,8 @@ class SB3Agent:
         self.model.save(model_bytes)
         self.model.save_replay_buffer(buffer_bytes)
         rng = {"numpy": np.random.get_state(), "python": random.getstate(), "torch": torch.get_rng_state()}
+        get_state = getattr(self.env.unwrapped, "get_state", None)
+        rng["env"] = get_state() if callable(get_state) else None
         meta = {"format": _FORMAT, "algo": self.algo, "seed": self.seed, "config": asdict(self.config)}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
@@ -226,8 +257,9 @@ class SB3Agent:
     def load(self, path: str | Path) -> None:
         """Restore a ``save``d agent onto this agent's env.
 
-        The env itself is not part of the agent, so an episode that was running at save time is
-        abandoned: learning resumes with a fresh episode (global step, buffer and log continue).
+        SB3's wrappers (Monitor, OrderEnforcing) cannot be resumed mid-episode, so an episode running
+        at save time is abandoned and learning resumes with a fresh episode; global step, buffer, log,
+        RNGs and, for envs with ``get_state``/``set_state`` (ours), the drift clock all continue.
         """
         with zipfile.ZipFile(Path(path)) as zf:
             meta = json.loads(zf.read("meta.json"))
@@ -246,10 +278,8 @@ class SB3Agent:
         np.random.set_state(rng["numpy"])
         random.setstate(rng["python"])
         torch.set_rng_state(rng["torch"])
+        set_state = getattr(self.env.unwrapped, "set_state", None)
+        if rng.get("env") is not None and callable(set_state):
+            set_state(rng["env"])
         self.log = log
         self._ep_return, self._ep_length = 0.0, 0
-
-
-def make_sb3_agent(algo: str, env: gym.Env, seed: int, config: dict[str, Any] | None = None) -> SB3Agent:
-    """Registry entry point: ``make_agent("td3"|"ddpg", env, seed, config)`` lands here."""
-    return SB3Agent(algo, env, seed, config)

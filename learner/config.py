@@ -51,9 +51,14 @@ class AdaptiveHConfig:
         _check(self.critic_budget >= 1, "critic_budget", f"must be >= 1, got {self.critic_budget}")
         _check(0.0 <= self.policy_ald < 1.0, "policy_ald", f"must be in [0, 1), got {self.policy_ald}")
         _check(0.0 <= self.critic_ald < 1.0, "critic_ald", f"must be in [0, 1), got {self.critic_ald}")
-        _check(self.critic in ("value", "compatible"), "critic", f"must be value|compatible, got {self.critic!r}")
-        _check(0.0 < self.critic_forgetting <= 1.0, "critic_forgetting",
-               f"must be in (0, 1], got {self.critic_forgetting}")
+        _check(
+            self.critic in ("value", "compatible"), "critic", f"must be value|compatible, got {self.critic!r}"
+        )
+        _check(
+            0.0 < self.critic_forgetting <= 1.0,
+            "critic_forgetting",
+            f"must be in (0, 1], got {self.critic_forgetting}",
+        )
         _check(self.critic_p0 > 0, "critic_p0", f"must be > 0, got {self.critic_p0}")
         _check(self.retreat in MODES, "retreat", f"must be one of {MODES}, got {self.retreat!r}")
         _check(self.retreat_window >= 1, "retreat_window", f"must be >= 1, got {self.retreat_window}")

@@ -63,8 +63,9 @@ class KLSTDCritic:
         kvec = self.dictionary.features(s)
         return float((self._phi(kvec, score) - self._phi(kvec, None)) @ self.theta)
 
-    def update(self, s: np.ndarray, r: float, s_next: np.ndarray, terminal: bool,
-               score: np.ndarray | None = None) -> float:
+    def update(
+        self, s: np.ndarray, r: float, s_next: np.ndarray, terminal: bool, score: np.ndarray | None = None
+    ) -> float:
         """Fit one transition; returns the advantage estimate for the actor, computed before the fit.
 
         ``value``: the TD error ``r + γV(s') - V(s)``. ``compatible``: ``Q̂(s,a) - V(s)``.

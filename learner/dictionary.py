@@ -148,8 +148,11 @@ class RKHSFunction:
         self.error_bound += float(np.sqrt(loss[j]))
 
     def state_dict(self) -> dict:
-        return {"dictionary": self.dictionary.state_dict(), "weights": self.weights,
-                "error_bound": self.error_bound}
+        return {
+            "dictionary": self.dictionary.state_dict(),
+            "weights": self.weights,
+            "error_bound": self.error_bound,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.dictionary.load_state_dict(state["dictionary"])

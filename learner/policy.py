@@ -42,11 +42,14 @@ class RKHSGaussianPolicy:
         return np.clip(raw, self.low, self.high), raw
 
     def score(self, s: np.ndarray, raw_action: np.ndarray) -> np.ndarray:
-        """∂ log π(a|s) / ∂ f(s): ``J_tanhᵀ Σ⁻¹ (a - μ(s))`` (the paper's ``Σ⁻¹(a - h(s))`` through the squash)."""
-        fs = self.f(s)
-        mu = self.centre + self.half_range * np.tanh(fs)
-        jac = self.half_range * (1.0 - np.tanh(fs) ** 2)
-        return jac * self.sigma_inv2 * (raw_action - mu)
+        """The paper's ``Σ⁻¹(a - h(s))`` in f's units: ``r ⊙ Σ⁻¹(a - μ(s))``.
+
+        The exact derivative through the squash carries ``1 - tanh²(f)``, which vanishes where the
+        mean saturates: measured, the policy then sits at a box edge with a zero gradient for whole
+        episodes. This straight-through form keeps the sign and scale of the paper's gradient, and
+        weight decay pulls saturated regions back.
+        """
+        return self.half_range * self.sigma_inv2 * (raw_action - self.mean(s))
 
     def log_prob(self, s: np.ndarray, raw_action: np.ndarray) -> float:
         z = (raw_action - self.mean(s)) / self.sigma

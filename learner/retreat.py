@@ -26,7 +26,9 @@ from learner.kernels import GaussianKernel
 MODES = ("cosine", "literal", "off")
 
 
-def rkhs_inner(kernel: GaussianKernel, sa: np.ndarray, ga: np.ndarray, sb: np.ndarray, gb: np.ndarray) -> float:
+def rkhs_inner(
+    kernel: GaussianKernel, sa: np.ndarray, ga: np.ndarray, sb: np.ndarray, gb: np.ndarray
+) -> float:
     """``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H`` in closed form."""
     return float(np.sum(kernel(sa, sb) * (ga @ gb.T)))
 

@@ -17,11 +17,20 @@ G0 = 9.8
 GRAVITY_PRESETS = {
     "stationary": DriftConfig(base=G0, low=G0, high=G0),
     # slow: one gravity cycle per 20k steps (~40 full episodes) between 0.6 g and 1.4 g.
-    "slow": DriftConfig(base=G0, low=0.5 * G0, high=1.5 * G0, amplitude=0.4 * G0, period=20_000,
-                        walk_std=0.002),
+    "slow": DriftConfig(
+        base=G0, low=0.5 * G0, high=1.5 * G0, amplitude=0.4 * G0, period=20_000, walk_std=0.002
+    ),
     # fast: a cycle per 2k steps, a noisier walk and a jump every 1k steps.
-    "fast": DriftConfig(base=G0, low=0.5 * G0, high=1.5 * G0, amplitude=0.4 * G0, period=2_000,
-                        walk_std=0.01, jump_every=1_000, jump_size=0.1 * G0),
+    "fast": DriftConfig(
+        base=G0,
+        low=0.5 * G0,
+        high=1.5 * G0,
+        amplitude=0.4 * G0,
+        period=2_000,
+        walk_std=0.01,
+        jump_every=1_000,
+        jump_size=0.1 * G0,
+    ),
 }
 
 
@@ -37,8 +46,9 @@ class NSCartPoleContinuous(gym.Env):
     x_threshold = 2.4
     max_steps = 500
 
-    def __init__(self, preset: str = "slow", seed: int = 0, force_mag: float = 10.0,
-                 drift: DriftConfig | None = None):
+    def __init__(
+        self, preset: str = "slow", seed: int = 0, force_mag: float = 10.0, drift: DriftConfig | None = None
+    ):
         if preset not in GRAVITY_PRESETS and drift is None:
             raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(GRAVITY_PRESETS)}")
         if force_mag <= 0:
@@ -85,12 +95,22 @@ class NSCartPoleContinuous(gym.Env):
             self.length * (4.0 / 3.0 - self.masspole * cos**2 / total_mass)
         )
         xacc = temp - polemass_length * thetaacc * cos / total_mass
-        return np.array([x + self.tau * x_dot, x_dot + self.tau * xacc,
-                         theta + self.tau * theta_dot, theta_dot + self.tau * thetaacc])
+        return np.array(
+            [
+                x + self.tau * x_dot,
+                x_dot + self.tau * xacc,
+                theta + self.tau * theta_dot,
+                theta_dot + self.tau * thetaacc,
+            ]
+        )
 
     def get_state(self) -> dict:
-        return {"state": None if self.state is None else self.state.copy(), "steps": self.steps,
-                "schedule": self.gravity_schedule.get_state(), "np_random": self.np_random.bit_generator.state}
+        return {
+            "state": None if self.state is None else self.state.copy(),
+            "steps": self.steps,
+            "schedule": self.gravity_schedule.get_state(),
+            "np_random": self.np_random.bit_generator.state,
+        }
 
     def set_state(self, state: dict) -> None:
         self.state, self.steps = state["state"], state["steps"]

@@ -18,8 +18,16 @@ from sim.schedules import DriftConfig, DriftSchedule
 NOISE_PRESETS = {
     "stationary": DriftConfig(base=0.0, low=0.0, high=0.0),
     "slow": DriftConfig(base=0.05, low=0.0, high=0.15, amplitude=0.05, period=20_000, walk_std=0.0005),
-    "fast": DriftConfig(base=0.1, low=0.0, high=0.3, amplitude=0.1, period=2_000, walk_std=0.002,
-                        jump_every=1_000, jump_size=0.05),
+    "fast": DriftConfig(
+        base=0.1,
+        low=0.0,
+        high=0.3,
+        amplitude=0.1,
+        period=2_000,
+        walk_std=0.002,
+        jump_every=1_000,
+        jump_size=0.05,
+    ),
 }
 
 
@@ -30,12 +38,13 @@ def angle_normalize(x: float) -> float:
 class NSPendulum(gym.Env):
     metadata = {"render_modes": []}
 
-    g, m, l, dt = 10.0, 1.0, 1.0, 0.05
+    g, m, length, dt = 10.0, 1.0, 1.0, 0.05
     max_speed, max_torque = 8.0, 2.0
     max_steps = 200
 
-    def __init__(self, preset: str = "slow", seed: int = 0, obs_delay: int = 0,
-                 drift: DriftConfig | None = None):
+    def __init__(
+        self, preset: str = "slow", seed: int = 0, obs_delay: int = 0, drift: DriftConfig | None = None
+    ):
         if preset not in NOISE_PRESETS and drift is None:
             raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(NOISE_PRESETS)}")
         if obs_delay < 0:
@@ -76,7 +85,10 @@ class NSPendulum(gym.Env):
         u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -self.max_torque, self.max_torque))
         th, thdot = self.state
         cost = angle_normalize(th) ** 2 + 0.1 * thdot**2 + 0.001 * u**2
-        newthdot = thdot + (3 * self.g / (2 * self.l) * np.sin(th) + 3.0 / (self.m * self.l**2) * u) * self.dt
+        newthdot = (
+            thdot
+            + (3 * self.g / (2 * self.length) * np.sin(th) + 3.0 / (self.m * self.length**2) * u) * self.dt
+        )
         newthdot = float(np.clip(newthdot, -self.max_speed, self.max_speed))
         self.state = np.array([th + newthdot * self.dt, newthdot])
         self.noise_schedule.advance()
@@ -85,9 +97,13 @@ class NSPendulum(gym.Env):
         return self._observe(), -float(cost), False, truncated, self._info()
 
     def get_state(self) -> dict:
-        return {"state": None if self.state is None else self.state.copy(), "steps": self.steps,
-                "history": list(self._history), "schedule": self.noise_schedule.get_state(),
-                "np_random": self.np_random.bit_generator.state}
+        return {
+            "state": None if self.state is None else self.state.copy(),
+            "steps": self.steps,
+            "history": list(self._history),
+            "schedule": self.noise_schedule.get_state(),
+            "np_random": self.np_random.bit_generator.state,
+        }
 
     def set_state(self, state: dict) -> None:
         self.state, self.steps = state["state"], state["steps"]

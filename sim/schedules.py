@@ -61,8 +61,14 @@ class DriftSchedule:
             self.jump = float(self.rng.uniform(-c.jump_size, c.jump_size))
 
     def get_state(self) -> dict:
-        return {"rng": self.rng.bit_generator.state, "t": self.t, "walk": self.walk, "jump": self.jump,
-                "phase": self.phase, "config": asdict(self.config)}
+        return {
+            "rng": self.rng.bit_generator.state,
+            "t": self.t,
+            "walk": self.walk,
+            "jump": self.jump,
+            "phase": self.phase,
+            "config": asdict(self.config),
+        }
 
     def set_state(self, state: dict) -> None:
         self.rng.bit_generator.state = state["rng"]

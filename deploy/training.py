@@ -1,0 +1,192 @@
+"""In-process training runs: ``adaptiveh train`` and the benchmarks build on ``TrainSpec``/``train``.
+
+A run writes ``result.json`` (episodes, segments, retreat-statistic summary, timing), ``curve.png``
+and a checkpoint (``checkpoint.pkl``) every ``checkpoint_every`` steps and at the end, so an
+interrupted run resumes where it stopped and nothing learned is lost.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+import sim  # noqa: F401  (registers the environments)
+from deploy.config import ConfigError, build, load_yaml
+from learner.protocol import Agent, RunLog
+from learner.registry import ALGOS, make_agent
+
+
+@dataclass
+class TrainSpec:
+    """One training run; every field can come from YAML (``--config``) or the command line."""
+
+    env: str = "NSCartPoleContinuous-v0"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    algo: str = "adaptiveh"
+    steps: int = 20_000
+    seed: int = 0
+    agent: dict[str, Any] = field(default_factory=dict)
+    checkpoint_every: int = 5_000
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGOS:
+            raise ValueError(f"algo: unknown {self.algo!r}; choose one of {list(ALGOS)}")
+        if self.env not in gym.registry:
+            raise ValueError(f"env: unknown environment {self.env!r}")
+        if self.steps < 1:
+            raise ValueError(f"steps: must be >= 1, got {self.steps}")
+        if self.checkpoint_every < 1:
+            raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
+
+
+def load_spec(path: str | Path | None, overrides: dict[str, Any]) -> TrainSpec:
+    data = load_yaml(path) if path else {}
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    return build(TrainSpec, data, str(path or "train"))
+
+
+def make_env(spec: TrainSpec) -> gym.Env:
+    kwargs = {"seed": spec.seed, **spec.env_kwargs}
+    try:
+        return gym.make(spec.env, **kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"env_kwargs: {exc}") from None
+
+
+def build_agent(spec: TrainSpec, env: gym.Env) -> Agent:
+    try:
+        return make_agent(spec.algo, env, spec.seed, spec.agent)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"agent: {exc}") from None
+
+
+def summarize(log: RunLog) -> dict[str, Any]:
+    """Headline numbers of a run: returns, segment lengths, why segments ended, the statistic trace."""
+    rets = np.array([e.ret for e in log.episodes], float)
+    H = np.array([s.H for s in log.segments], float)
+    stats = np.array([x for s in log.segments for x in s.statistic], float)
+    tenth = max(1, len(rets) // 10)
+    out: dict[str, Any] = {
+        "episodes": len(rets),
+        "mean_return": float(rets.mean()) if len(rets) else None,
+        "final_return": float(rets[-tenth:].mean()) if len(rets) else None,
+        "best_return": float(rets.max()) if len(rets) else None,
+        "segments": len(H),
+        "reasons": {
+            r: sum(1 for s in log.segments if s.reason == r) for r in ("retreat", "h_max", "episode_end")
+        },
+    }
+    if len(H):
+        out["H"] = {
+            "mean": float(H.mean()),
+            "median": float(np.median(H)),
+            "p10": float(np.percentile(H, 10)),
+            "p90": float(np.percentile(H, 90)),
+        }
+    if len(stats):
+        out["statistic"] = {
+            "count": int(len(stats)),
+            "mean": float(stats.mean()),
+            "p10": float(np.percentile(stats, 10)),
+            "p50": float(np.median(stats)),
+            "p90": float(np.percentile(stats, 90)),
+            "threshold": float(log.segments[0].threshold),
+        }
+    successes = [e.success for e in log.episodes if e.success is not None]
+    if successes:
+        out["success_rate"] = float(np.mean(successes))
+    return out
+
+
+def plot_run(log: RunLog, title: str, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    has_segments = bool(log.segments)
+    fig, axes = plt.subplots(1, 3 if has_segments else 1, figsize=(15 if has_segments else 6, 4))
+    axes = np.atleast_1d(axes)
+    steps = [e.global_step for e in log.episodes]
+    rets = np.array([e.ret for e in log.episodes])
+    axes[0].plot(steps, rets, ".", alpha=0.35, label="episode return")
+    if len(rets) >= 5:
+        k = max(5, len(rets) // 20)
+        smooth = np.convolve(rets, np.ones(k) / k, mode="valid")
+        axes[0].plot(steps[k - 1 :], smooth, "-", lw=2, label=f"moving mean ({k} episodes)")
+    axes[0].set(xlabel="environment step", ylabel="return", title=title)
+    axes[0].legend()
+    if has_segments:
+        seg_steps = [s.global_step for s in log.segments]
+        colors = {"retreat": "tab:red", "h_max": "tab:blue", "episode_end": "tab:gray"}
+        for reason, color in colors.items():
+            pts = [(s.global_step, s.H) for s in log.segments if s.reason == reason]
+            if pts:
+                axes[1].plot(*zip(*pts, strict=True), ".", ms=3, color=color, alpha=0.5, label=reason)
+        axes[1].set(xlabel="environment step", ylabel="segment length H", title="adaptive window H")
+        axes[1].legend()
+        axes[2].hist([s.H for s in log.segments], bins=30, color="tab:purple")
+        axes[2].set(xlabel="H", ylabel="segments", title=f"H distribution ({len(seg_steps)} segments)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def train(spec: TrainSpec, out: str | Path, resume: bool = True, progress: bool = True) -> dict[str, Any]:
+    """Run (or resume) ``spec``; returns the result dict also written to ``out/result.json``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    env = make_env(spec)
+    agent = build_agent(spec, env)
+    ckpt = out / "checkpoint.pkl"
+    if resume and ckpt.exists():
+        agent.load(ckpt)
+    start_step = agent.log.global_step
+    remaining = max(spec.steps - start_step, 0)
+    bar = tqdm(
+        total=spec.steps,
+        initial=start_step,
+        disable=not progress,
+        unit="step",
+        desc=f"{spec.algo} {spec.env}",
+        mininterval=0.5,
+    )
+    t0 = time.perf_counter()
+
+    def on_step(step: int, log: RunLog) -> None:
+        bar.update(1)
+        if step % spec.checkpoint_every == 0:
+            agent.save(ckpt)
+        if log.episodes and step % 200 == 0:
+            postfix = {"ep": len(log.episodes), "ret": f"{log.episodes[-1].ret:.1f}"}
+            if log.segments:
+                postfix["H"] = log.segments[-1].H
+            bar.set_postfix(postfix)
+
+    try:
+        agent.learn(remaining, callback=on_step)
+    finally:
+        agent.save(ckpt)
+        bar.close()
+    wall = time.perf_counter() - t0
+    result = {
+        "spec": asdict(spec),
+        "agent_config": getattr(getattr(agent, "config", None), "to_dict", lambda: spec.agent)(),
+        "summary": summarize(agent.log),
+        "wall_clock_s": wall,
+        "steps_this_session": agent.log.global_step - start_step,
+        "steps_per_s": (agent.log.global_step - start_step) / wall if wall > 0 else None,
+        "nonfinite_skipped": getattr(agent, "nonfinite_skipped", 0),
+        **agent.log.to_dict(),
+    }
+    (out / "result.json").write_text(json.dumps(result, indent=1))
+    plot_run(agent.log, f"{spec.algo} on {spec.env} (seed {spec.seed})", out / "curve.png")
+    env.close()
+    return result
