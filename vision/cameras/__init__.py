@@ -1,0 +1,1 @@
+"""Camera backends behind one protocol (``protocol.Camera``): ``sim`` (PyBullet) and ``realsense``."""
