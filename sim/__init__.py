@@ -10,3 +10,4 @@ def _register(env_id: str, entry_point: str) -> None:
 
 _register("NSCartPoleContinuous-v0", "sim.cartpole:NSCartPoleContinuous")
 _register("NSPendulum-v0", "sim.pendulum:NSPendulum")
+_register("NSReach-v0", "sim.reach:NSReachEnv")

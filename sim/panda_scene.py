@@ -225,11 +225,8 @@ class PandaScene:
             )
 
     def brake(self) -> None:
-        """Stop now: zero joint velocity, then hold the position reached (used by e-stop and holds)."""
-        cid = self.client_id
+        """Stop: servo to the current position with full force and no speed cap (PD braking)."""
         q, _ = self.joint_state()
-        for j, qj in zip(self.arm_joints, q, strict=True):
-            pb.resetJointState(self.robot_id, j, float(qj), 0.0, physicsClientId=cid)
         self.command_positions(q)
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:

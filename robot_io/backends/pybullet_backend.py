@@ -1,0 +1,54 @@
+"""The mock arm: the shared PyBullet Panda scene, stepped by the backend at the control rate."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robot_io.backends.protocol import JointState
+from robot_io.config import RobotConfig
+from sim.panda_scene import PandaScene
+
+
+class PyBulletBackend:
+    name = "pybullet"
+
+    def __init__(self, config: RobotConfig, scene: PandaScene | None = None) -> None:
+        self.config = config
+        self.scene = scene or PandaScene(
+            motion=config.target_motion,
+            seed=config.seed,
+            time_step=config.period / config.physics_substeps,
+        )
+        self.substeps = config.physics_substeps
+        self.scene.reset_robot(config.home_q)
+
+    def read_state(self) -> JointState:
+        q, dq = self.scene.joint_state()
+        return JointState(q, dq, self.scene.time)
+
+    def send_joint_command(self, q: np.ndarray) -> None:
+        """Servo to ``q`` at the constant speed that gets there in one control period (smooth, like an
+        interpolating joint controller), rather than snapping there and waiting."""
+        q = np.asarray(q, float)
+        q_now, _ = self.scene.joint_state()
+        speed = np.maximum(np.abs(q - q_now) / self.config.period, 1e-3)
+        self.scene.command_positions(q, max_velocity=speed)
+
+    def hold(self) -> None:
+        self.scene.brake()
+
+    def fault(self) -> str | None:
+        return None
+
+    def recover(self) -> bool:
+        return True  # the mock has no driver errors to clear
+
+    def reset(self, q_home: np.ndarray, seed: int | None) -> None:
+        self.scene.reset_robot(q_home)
+        self.scene.reset_target(seed)
+
+    def step(self) -> None:
+        self.scene.step(self.substeps)
+
+    def close(self) -> None:
+        self.scene.close()

@@ -1,0 +1,79 @@
+"""Forward kinematics, Jacobians and command checks with Pinocchio (independent of the IK's MuJoCo model)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from robot_io.description import PandaDescription
+
+
+@dataclass(frozen=True)
+class CommandCheck:
+    """Why a joint command is refused; ``ok`` when it is not."""
+
+    ok: bool
+    kind: str = ""  # joint_limit | velocity_limit | workspace
+    detail: str = ""
+
+
+class Kinematics:
+    """Tool-centre-point kinematics of the Panda arm (7 joints)."""
+
+    def __init__(self, description: PandaDescription | None = None) -> None:
+        self.description = description or PandaDescription()
+        self.model = self.description.pinocchio_model()
+        self.data = self.model.createData()
+        self.ee_id = self.model.getFrameId(self.description.ee_frame)
+        limits = self.description.limits
+        self.lower, self.upper, self.velocity = limits.lower, limits.upper, limits.velocity
+
+    def fk(self, q: np.ndarray) -> pin.SE3:
+        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, float))
+        return self.data.oMf[self.ee_id].copy()
+
+    def ee_position(self, q: np.ndarray) -> np.ndarray:
+        return self.fk(q).translation.copy()
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """6x7 Jacobian of the tool centre point, world-aligned (linear rows first)."""
+        return pin.computeFrameJacobian(
+            self.model, self.data, np.asarray(q, float), self.ee_id, pin.LOCAL_WORLD_ALIGNED
+        )
+
+    def ee_velocity(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        return self.jacobian(q)[:3] @ np.asarray(dq, float)
+
+    def check(
+        self,
+        q_cmd: np.ndarray,
+        q_now: np.ndarray,
+        dt: float,
+        margin: float,
+        velocity_scale: float,
+        box: tuple[np.ndarray, np.ndarray],
+    ) -> CommandCheck:
+        """Check a command before it is sent: joint limits, joint velocity, end effector in the box."""
+        q_cmd = np.asarray(q_cmd, float)
+        low, high = self.lower + margin, self.upper - margin
+        bad = np.flatnonzero((q_cmd < low - 1e-9) | (q_cmd > high + 1e-9))
+        if bad.size:
+            j = int(bad[0])
+            return CommandCheck(
+                False, "joint_limit", f"joint {j + 1} = {q_cmd[j]:.4f} outside [{low[j]:.4f}, {high[j]:.4f}]"
+            )
+        speed = np.abs(q_cmd - np.asarray(q_now, float)) / dt
+        vmax = self.velocity * velocity_scale
+        bad = np.flatnonzero(speed > vmax * 1.05 + 1e-9)
+        if bad.size:
+            j = int(bad[0])
+            return CommandCheck(
+                False, "velocity_limit", f"joint {j + 1} at {speed[j]:.3f} rad/s > {vmax[j]:.3f}"
+            )
+        p = self.ee_position(q_cmd)
+        lo, hi = box
+        if np.any(p < lo - 1e-6) or np.any(p > hi + 1e-6):
+            return CommandCheck(False, "workspace", f"end effector {np.round(p, 4).tolist()} outside the box")
+        return CommandCheck(True)
