@@ -59,6 +59,7 @@ class RobotController:
         self._pending: list[str] = []  # operator commands, applied at the next tick
         self._jog: list[np.ndarray] = []
         self._unreachable = False
+        self._braked = False
 
     # -- called from other threads -------------------------------------------------------------------
     def push_chunk(self, chunk_seq: int, actions: np.ndarray, now: float) -> bool:
@@ -107,32 +108,46 @@ class RobotController:
             stamp=js.stamp,
         )
 
-    def tick(self, now: float) -> TickResult:
-        """One control period: operator commands, faults, watchdog, then the next action or a hold."""
-        braking = False
+    def _safety_pass(self, now: float) -> bool:
+        """Apply operator commands, driver faults and the watchdog; True when the arm must brake now."""
         with self._lock:
             for command in self._pending:
                 getattr(self.safety, command)()
             self._pending.clear()
-            jogs, self._jog = self._jog, []
-            was_moving = self.safety.may_move
             fault = self.backend.fault()
-            if fault is not None and self.safety.hold("driver_error", fault):
-                self.queue.clear()
-            if self.safety.check_watchdog(now, queue_empty=len(self.queue) == 0):
-                self.queue.clear()
-            if not self.safety.may_move:
-                braking = was_moving or self.safety.mode == "estop"
-                self.queue.clear()
+            if fault is not None:
+                self.safety.hold("driver_error", fault)
+            self.safety.check_watchdog(now, queue_empty=len(self.queue) == 0)
+            if self.safety.may_move:
+                self._braked = False
+                return False
+            self.queue.clear()
+            brake = not self._braked or self.safety.mode == "estop"
+            self._braked = True
+            return brake
+
+    def react(self, now: float) -> TickResult:
+        """Apply holds at once (between ticks, e.g. on an e-stop) without advancing the period."""
+        if self._safety_pass(now):
+            self.backend.hold()
+        with self._lock:
+            return TickResult(self.state(), None, self.safety.drain(), self.queue.reports())
+
+    def tick(self, now: float) -> TickResult:
+        """One control period: safety first, then the next queued action (or a jog while paused)."""
+        braking = self._safety_pass(now)
+        with self._lock:
+            jogs, self._jog = self._jog, []
             action = self.queue.pop() if self.safety.may_move else None
             if action is not None:
                 self.safety.command_received(now)
+            paused = self.safety.mode == "paused"
         applied = None
         if braking:
             self.backend.hold()
         elif action is not None:
             applied = self._execute(action)
-        elif jogs and self.safety.mode == "paused":
+        elif jogs and paused:
             for jog in jogs:
                 applied = self._execute(jog)
         self.backend.step()

@@ -2,11 +2,12 @@
 
 libfranka needs a joint command every millisecond. A dedicated thread runs that loop on pylibfranka's
 own control interface (``Robot.start_joint_position_control`` → ``readOnce``/``writeOnce``), paced by
-the robot's packets, and interpolates towards the latest IK target with velocity and acceleration
-limits; the acceleration limit times 1 ms keeps the jerk under libfranka's limit, so the motion
-generator never reports a discontinuity. The control loop at the learner's rate only swaps the target,
-so it never blocks the 1 kHz loop. (pylibfranka's ``AsyncPositionControlHandler`` also keeps the loop
-inside libfranka, but it exposes no robot state while active, and the learner needs the state.)
+the robot's packets. It follows the latest IK target with a velocity- and acceleration-limited
+reference smoothed by a 20 ms moving average (which keeps both bounds and caps the jerk at
+2·a_max/20 ms), so libfranka's motion generator never sees a discontinuity. The control loop at the
+learner's rate only swaps the target, so it never blocks the 1 kHz loop.
+(pylibfranka's ``AsyncPositionControlHandler`` also keeps the loop inside libfranka, but it
+exposes no robot state while active, and the learner needs the state.)
 
 Errors (reflexes, collisions, network) end the loop; ``fault()`` reports them and ``recover()`` runs
 ``automatic_error_recovery`` and restarts the loop. The module is imported lazily so the rest of the
@@ -19,6 +20,7 @@ import importlib
 import logging
 import threading
 import time
+from collections import deque
 from types import ModuleType
 
 import numpy as np
@@ -31,7 +33,8 @@ log = logging.getLogger(__name__)
 
 # Panda joint acceleration limits (rad/s^2, Franka datasheet); the interpolator uses a fraction.
 MAX_JOINT_ACCEL = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
-ACCEL_SCALE = 0.3  # 0.3 * 20 rad/s^2 over 1 ms is 6000 rad/s^3, under libfranka's 7500 jerk limit
+ACCEL_SCALE = 0.3
+SMOOTHING_TICKS = 20  # moving-average length (ms): jerk <= 2 * a_max / 0.02 s = 600 rad/s^3 at 6 rad/s^2
 
 
 def interpolate(
@@ -95,24 +98,29 @@ class FrankaBackend:
             control = self.robot.start_joint_position_control(self.lib.ControllerMode.JointImpedance)
             state, _ = control.readOnce()
             q_d, v = np.array(state.q, float), np.zeros(7)
+            window = deque([q_d.copy()] * SMOOTHING_TICKS, maxlen=SMOOTHING_TICKS)
+            smooth_sum = q_d * SMOOTHING_TICKS
             while True:
                 state, duration = control.readOnce()
                 dt = duration.to_sec() or 0.001
                 with self._lock:
-                    self._q, self._dq, self._stamp = (
-                        np.array(state.q, float),
-                        np.array(state.dq, float),
-                        time.monotonic(),
-                    )
-                    if self._braking:  # decelerate in place, then hold where we stopped
-                        self._target = q_d + v * np.abs(v) / (2.0 * self.amax)
+                    self._q, self._dq = np.array(state.q, float), np.array(state.dq, float)
+                    self._stamp = time.monotonic()
+                    braking = self._braking or self._stop.is_set()
                     target = self._target.copy()
+                if braking:  # decelerate at a_max where we are, then stay there
+                    v = v - np.sign(v) * np.minimum(np.abs(v), self.amax * dt)
+                    q_d = q_d + v * dt
+                    with self._lock:
+                        self._target = q_d.copy()
+                else:
+                    q_d, v = interpolate(q_d, v, target, dt, self.vmax, self.amax)
                 stopping = self._stop.is_set()
-                if stopping:
-                    target = q_d + v * np.abs(v) / (2.0 * self.amax)
-                q_d, v = interpolate(q_d, v, target, dt, self.vmax, self.amax)
-                command = self.lib.JointPositions(q_d.tolist())
-                if stopping and not np.any(np.abs(v) > 1e-6):
+                smooth_sum += q_d - window[0]
+                window.append(q_d.copy())
+                command = self.lib.JointPositions((smooth_sum / SMOOTHING_TICKS).tolist())
+                settled = not np.any(np.abs(v) > 1e-6) and np.max(np.abs(window[0] - q_d)) < 1e-9
+                if stopping and settled:
                     command.motion_finished = True
                     control.writeOnce(command)
                     return

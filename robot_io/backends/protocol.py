@@ -34,7 +34,7 @@ class RobotBackend(Protocol):
         """Clear a driver error (reflex, collision); True when the arm accepts commands again."""
 
     def reset(self, q_home: np.ndarray, seed: int | None) -> None:
-        """Go to ``q_home`` (and, in simulation, start a new target motion from ``seed``)."""
+        """Go to ``q_home``; in simulation a ``seed`` also starts a new target motion."""
 
     def step(self) -> None:
         """Let one control period pass: the simulation advances; a real arm moves on its own."""

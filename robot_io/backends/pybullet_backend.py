@@ -45,7 +45,8 @@ class PyBulletBackend:
 
     def reset(self, q_home: np.ndarray, seed: int | None) -> None:
         self.scene.reset_robot(q_home)
-        self.scene.reset_target(seed)
+        if seed is not None:  # a new target motion; without a seed the target keeps wandering
+            self.scene.reset_target(seed)
 
     def step(self) -> None:
         self.scene.step(self.substeps)

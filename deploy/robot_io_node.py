@@ -1,0 +1,272 @@
+"""The robot-interface process: robot_io's controller behind Zenoh.
+
+It ticks the controller at the control rate and publishes ``state`` every tick, ``cmd/status`` for every
+chunk change (executed, dropped, preempted_by) and ``events/safety`` for every intervention. It takes
+``cmd/chunk`` and ``control``, answers ``reset``, declares ``alive/robot_io`` and holds the arm while a
+watched peer's liveliness token (the learner's, by default) is gone. Physics (pybullet) and IK run on the
+control thread only; Zenoh callbacks just queue work for it, and an e-stop wakes it at once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from deploy import messages as m
+from deploy.config import ConfigError, build, load_yaml
+from deploy.transport import Bus, ZenohConfig, open_session
+from robot_io.config import RobotConfig
+from robot_io.controller import RobotController, TickResult
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RobotIOSettings:
+    name: str
+    zenoh: ZenohConfig
+    robot: RobotConfig
+
+
+def load_settings(path: str | Path) -> RobotIOSettings:
+    """Read ``name``, ``zenoh`` and ``robot`` from a top-level config (other sections are others')."""
+    data = load_yaml(path)
+    name = data.get("name", "panda")
+    if not isinstance(name, str) or not name or "/" in name or "*" in name:
+        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    return RobotIOSettings(
+        name=name,
+        zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
+        robot=build(RobotConfig, data.get("robot"), "robot"),
+    )
+
+
+def state_message(result: TickResult, seq: int) -> m.RobotState:
+    s = result.state
+    return m.RobotState(
+        seq=seq,
+        q=s.q.tolist(),
+        dq=s.dq.tolist(),
+        ee_pos=s.ee_pos.tolist(),
+        ee_vel=s.ee_vel.tolist(),
+        mode=s.mode,
+        chunk_seq=s.chunk_seq,
+        queue_len=s.queue_len,
+    )
+
+
+class RobotIONode:
+    """Run with ``start()``/``stop()`` (or as a context manager); ``run()`` blocks until stopped."""
+
+    def __init__(
+        self,
+        settings: RobotIOSettings,
+        controller: RobotController | None = None,
+        watch_peers: tuple[str, ...] = ("learner",),
+        control_token: str = "",
+    ) -> None:
+        self.settings = settings
+        self.controller = controller or RobotController(settings.robot)
+        self.period = settings.robot.period
+        self.watch_peers = watch_peers
+        self.control_token = control_token
+        self.bus = Bus(open_session(settings.zenoh), settings.name)
+        self._pub_state = self.bus.publisher(m.STATE)
+        self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
+        self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
+        self._seq = {"state": 0, "status": 0, "safety": 0}
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._resets: list[tuple[int, threading.Event, list[m.ResetReply]]] = []
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._periodic: list[tuple[float, Callable[[], None], list[float]]] = []
+        self.ticks = 0
+        self.bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._on_chunk, on_bad=self._on_bad)
+        self.bus.subscribe(m.CONTROL, m.Control, self._on_control, on_bad=self._on_bad)
+        self.bus.queryable(m.RESET, m.ResetRequest, self._on_reset)
+        self.bus.watch_alive(self._on_alive)
+        self.bus.declare_alive("robot_io")
+
+    # -- the scene, for the sim camera ---------------------------------------------------------------
+    @property
+    def scene(self):
+        """The PyBullet scene when the backend is the mock (render it from ``add_periodic`` only)."""
+        return getattr(self.controller.backend, "scene", None)
+
+    def add_periodic(self, rate_hz: float, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the control thread at about ``rate_hz`` (e.g. render and publish camera frames)."""
+        self._periodic.append((1.0 / rate_hz, fn, [0.0]))
+
+    # -- Zenoh callbacks (Zenoh threads) -------------------------------------------------------------
+    def _on_bad(self, topic: str, exc: Exception) -> None:
+        self._publish_safety("bad_message", f"{topic}: {exc}", self.controller.safety.mode != "running")
+
+    def _on_chunk(self, msg: m.ActionChunk) -> None:
+        try:
+            actions = msg.action_array()
+        except m.MessageError as exc:
+            self._on_bad(m.CMD_CHUNK, exc)
+            return
+        if not self.controller.push_chunk(msg.chunk_seq, actions, time.monotonic()):
+            mode = self.controller.safety.mode
+            detail = (
+                f"refused in mode {mode}"
+                if mode in ("estop", "paused")
+                else "not newer than the current chunk"
+            )
+            log.info("chunk %d %s", msg.chunk_seq, detail)
+            self._publish_status(
+                m.ChunkStatus(chunk_seq=msg.chunk_seq, executed=0, dropped=len(actions), done=True)
+            )
+
+    def _on_control(self, msg: m.Control) -> None:
+        if msg.command not in m.Control.COMMANDS:
+            self._on_bad(m.CONTROL, m.MessageError(f"unknown command {msg.command!r}"))
+            return
+        # An e-stop is always obeyed; everything else needs the operator token when one is set.
+        if msg.command != "estop" and self.control_token and msg.token != self.control_token:
+            self._on_bad(m.CONTROL, m.MessageError(f"{msg.command}: wrong operator token"))
+            return
+        self.controller.operator(msg.command, np.asarray(msg.jog))
+        self._wake.set()
+
+    def _on_alive(self, name: str, alive: bool) -> None:
+        if name not in self.watch_peers:
+            return
+        if alive:
+            self.controller.peer_back(name)
+        else:
+            self.controller.peer_lost(name)
+        self._wake.set()
+
+    def _on_reset(self, request: m.ResetRequest) -> m.ResetReply:
+        done, box = threading.Event(), []
+        with self._lock:
+            self._resets.append((request.seed, done, box))
+        self._wake.set()
+        if not done.wait(timeout=30.0):
+            return m.ResetReply(ok=False, detail="reset timed out")
+        return box[0]
+
+    # -- publishing ----------------------------------------------------------------------------------
+    def _next(self, name: str) -> int:
+        with self._lock:
+            self._seq[name] += 1
+            return self._seq[name]
+
+    def _publish_status(self, status: m.ChunkStatus) -> None:
+        self._pub_status(
+            m.ChunkStatus(
+                seq=self._next("status"),
+                chunk_seq=status.chunk_seq,
+                executed=status.executed,
+                dropped=status.dropped,
+                preempted_by=status.preempted_by,
+                done=status.done,
+            )
+        )
+
+    def _publish_safety(self, kind: str, detail: str, held: bool) -> None:
+        self._pub_safety(m.SafetyEvent(seq=self._next("safety"), kind=kind, detail=detail, held=held))
+
+    def _publish(self, result: TickResult) -> None:
+        for record in result.events:
+            log.info("safety %s: %s", record.kind, record.detail)
+            self._publish_safety(record.kind, record.detail, record.held)
+        for report in result.reports:
+            self._publish_status(
+                m.ChunkStatus(
+                    chunk_seq=report.chunk_seq,
+                    executed=report.executed,
+                    dropped=report.dropped,
+                    preempted_by=report.preempted_by,
+                    done=report.done,
+                )
+            )
+        self._pub_state(state_message(result, self._next("state")))
+
+    # -- control thread ------------------------------------------------------------------------------
+    def _serve_resets(self) -> None:
+        with self._lock:
+            resets, self._resets = self._resets, []
+        for seed, done, box in resets:
+            try:
+                state = self.controller.reset(seed)
+                reply = m.ResetReply(ok=True, state=self._snapshot(state).encode())
+            except Exception as exc:
+                log.exception("reset failed")
+                reply = m.ResetReply(ok=False, detail=f"{type(exc).__name__}: {exc}")
+            box.append(reply)
+            done.set()
+
+    def _snapshot(self, state) -> m.RobotState:
+        return m.RobotState(
+            seq=self._next("state"),
+            q=state.q.tolist(),
+            dq=state.dq.tolist(),
+            ee_pos=state.ee_pos.tolist(),
+            ee_vel=state.ee_vel.tolist(),
+            mode=state.mode,
+            chunk_seq=state.chunk_seq,
+            queue_len=state.queue_len,
+        )
+
+    def run(self) -> None:
+        """Tick at the control rate until ``stop()``; between ticks serve resets and e-stops at once."""
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_tick:
+                self._publish(self.controller.tick(now))
+                self.ticks += 1
+                next_tick += self.period
+                if now - next_tick > self.period:  # fell behind (e.g. a long reset): do not burst
+                    next_tick = now + self.period
+                for interval, fn, last in self._periodic:
+                    if now - last[0] >= interval:
+                        last[0] = now
+                        try:
+                            fn()
+                        except Exception:
+                            log.exception("periodic task failed")
+            self._wake.wait(timeout=max(0.0, next_tick - time.monotonic()))
+            if self._wake.is_set():
+                self._wake.clear()
+                self._serve_resets()
+                result = self.controller.react(time.monotonic())
+                if result.events or result.reports:
+                    self._publish(result)
+
+    def request_stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """True once stopping was requested (within ``timeout``)."""
+        return self._stop.wait(timeout)
+
+    def start(self) -> RobotIONode:
+        self._thread = threading.Thread(target=self.run, name="robot-io", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self.bus.close()
+        self.controller.close()
+
+    def __enter__(self) -> RobotIONode:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,80 @@
+"""The controller on the PyBullet mock: workspace box, command checks, holds, unreachable goals."""
+
+import numpy as np
+
+from robot_io.config import RobotConfig
+
+
+def kinds(result) -> list[str]:
+    return [e.kind for e in result.events]
+
+
+def test_end_effector_stays_in_the_workspace_box(controller):
+    lo, hi = np.array(controller.config.workspace.lo), np.array(controller.config.workspace.hi)
+    seen = []
+    for _ in range(60):  # push down and out, hard
+        r = controller.step_action(np.array([0.05, 0.05, -0.05]))
+        seen += kinds(r)
+        assert np.all(r.state.ee_pos > lo - 2e-3) and np.all(r.state.ee_pos < hi + 2e-3)
+    assert "workspace" in seen
+    assert abs(r.state.ee_pos[2] - lo[2]) < 5e-3  # it went as far as allowed, no further
+
+
+def test_command_check_refuses_limits_and_speed(controller):
+    kin, cfg = controller.kin, controller.config
+    q = np.array(cfg.home_q)
+    box = controller.box
+    ok = kin.check(q, q, cfg.period, cfg.joint_margin_rad, cfg.velocity_scale, box)
+    assert ok.ok
+    beyond = q.copy()
+    beyond[3] = kin.upper[3] + 0.01
+    assert (
+        kin.check(beyond, q, cfg.period, cfg.joint_margin_rad, cfg.velocity_scale, box).kind == "joint_limit"
+    )
+    fast = q.copy()
+    fast[0] += 0.5  # 10 rad/s at 20 Hz
+    assert (
+        kin.check(fast, q, cfg.period, cfg.joint_margin_rad, cfg.velocity_scale, box).kind == "velocity_limit"
+    )
+    behind = q.copy()
+    behind[0] = 2.5  # swings the hand behind the base, out of the box
+    assert (
+        kin.check(behind, behind, cfg.period, cfg.joint_margin_rad, cfg.velocity_scale, box).kind
+        == "workspace"
+    )
+
+
+def test_estop_brakes_within_two_control_periods(controller):
+    for _ in range(5):
+        r = controller.step_action(np.array([0.05, 0.0, -0.03]))
+    assert np.abs(r.state.dq).max() > 0.2
+    controller.queue.push(1, np.tile([0.05, 0.0, -0.03], (20, 1)))
+    controller.operator("estop")
+    speeds = [np.abs(controller.tick(100.0 + k * controller.config.period).state.dq).max() for k in range(2)]
+    assert speeds[-1] < 0.01, speeds
+    q = controller.state().q
+    for k in range(10):
+        r = controller.tick(101.0 + k)
+    assert r.state.mode == "estop" and len(controller.queue) == 0
+    np.testing.assert_allclose(r.state.q, q, atol=2e-3)
+
+
+def test_unreachable_goal_is_an_event_not_an_exception():
+    from robot_io.config import WorkspaceBox
+    from robot_io.controller import RobotController
+
+    c = RobotController(
+        RobotConfig(target_motion="static", workspace=WorkspaceBox(lo=(-2, -2, -1), hi=(2, 2, 2)))
+    )
+    try:
+        events = []
+        for _ in range(80):
+            r = c.step_action(np.array([0.05, 0.0, 0.0]))  # keep pushing along +x, beyond reach
+            events += kinds(r)
+        assert events.count("ik_unreachable") >= 1
+        kin = c.kin
+        q = r.state.q
+        assert np.all(q >= kin.lower) and np.all(q <= kin.upper)
+        assert r.state.ee_pos[0] > 0.75  # stretched out towards the goal
+    finally:
+        c.close()
