@@ -25,6 +25,8 @@ from robot_io.config import RobotConfig
 from robot_io.controller import RobotController, TickResult
 
 log = logging.getLogger(__name__)
+# Simulation only: the target's ground-truth pose, for tests and vision accuracy checks (never the learner).
+TARGET_TRUTH = "sim/target_truth"
 
 
 @dataclass(frozen=True)
@@ -80,7 +82,8 @@ class RobotIONode:
         self._pub_state = self.bus.publisher(m.STATE)
         self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
-        self._seq = {"state": 0, "status": 0, "safety": 0}
+        self._pub_truth = self.bus.publisher(TARGET_TRUTH) if self.scene is not None else None
+        self._seq = {"state": 0, "status": 0, "safety": 0, "truth": 0}
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._resets: list[tuple[int, threading.Event, list[m.ResetReply]]] = []
@@ -191,6 +194,17 @@ class RobotIONode:
                 )
             )
         self._pub_state(state_message(result, self._next("state")))
+        if self._pub_truth is not None:
+            scene = self.scene
+            self._pub_truth(
+                m.Target(
+                    seq=self._next("truth"),
+                    position=scene.target.position.tolist(),
+                    velocity=scene.target_velocity().tolist(),
+                    valid=True,
+                    frame_stamp=scene.time,
+                )
+            )
 
     # -- control thread ------------------------------------------------------------------------------
     def _serve_resets(self) -> None:

@@ -67,6 +67,8 @@ class Safety:
         if reason not in self.reasons:
             return False
         self.reasons.discard(reason)
+        if not self.reasons:
+            self.last_command = None  # the watchdog restarts with the next command, not at once
         self.report("release", f"{reason} cleared: {detail}")
         return True
 
@@ -89,8 +91,8 @@ class Safety:
 
     # -- watchdog ------------------------------------------------------------------------------------
     def command_received(self, now: float) -> None:
-        self.last_command = now
         self.clear("watchdog", "fresh command")
+        self.last_command = now
 
     def check_watchdog(self, now: float, queue_empty: bool) -> bool:
         """Hold when the queue has run dry and no fresh command came within the timeout."""

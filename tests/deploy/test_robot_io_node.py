@@ -1,0 +1,230 @@
+"""The robot-interface process over real Zenoh on loopback: reach, preemption, watchdog, e-stop, liveliness.
+
+One ``adaptiveh robot-io`` subprocess (PyBullet mock) per module; the test is the learner and the monitor.
+"""
+
+import random
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+
+import numpy as np
+import pytest
+import yaml
+
+from deploy import messages as m
+from deploy.robot_io_node import TARGET_TRUTH
+from deploy.transport import Bus, ZenohConfig, open_session
+
+RATE = 20.0
+PERIOD = 1.0 / RATE
+
+
+class Listener:
+    """Collects everything the robot publishes."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.lock = threading.Lock()
+        self.states: deque[tuple[float, m.RobotState]] = deque(maxlen=4000)
+        self.status: list[m.ChunkStatus] = []
+        self.safety: list[tuple[float, m.SafetyEvent]] = []
+        self.truth: m.Target | None = None
+        bus.subscribe(m.STATE, m.RobotState, self._state)
+        bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, lambda s: self._add(self.status, s))
+        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, lambda e: self._add(self.safety, (time.monotonic(), e)))
+        bus.subscribe(TARGET_TRUTH, m.Target, self._truth)
+
+    def _add(self, where, item):
+        with self.lock:
+            where.append(item)
+
+    def _state(self, s):
+        self._add(self.states, (time.monotonic(), s))
+
+    def _truth(self, t):
+        self.truth = t
+
+    def latest(self) -> m.RobotState:
+        with self.lock:
+            return self.states[-1][1]
+
+    def events(self, kind: str) -> list[tuple[float, m.SafetyEvent]]:
+        with self.lock:
+            return [e for e in self.safety if e[1].kind == kind]
+
+    def wait(self, pred, timeout: float = 5.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            out = pred()
+            if out:
+                return out
+            time.sleep(0.01)
+        raise AssertionError(f"timed out after {timeout} s")
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory):
+    port = random.randint(20000, 60000)
+    name = f"t{random.randint(0, 10**9)}"
+    cfg = {
+        "name": name,
+        "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]},
+        "robot": {
+            "backend": "pybullet",
+            "control_rate_hz": RATE,
+            "target_motion": "slow",
+            "watchdog_timeout_s": 0.5,
+        },
+    }
+    path = tmp_path_factory.mktemp("robot_io") / "sim.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    endpoint = (f"tcp/127.0.0.1:{port}",)
+    bus = Bus(open_session(ZenohConfig(connect=endpoint)), name)
+    listener = Listener(bus)
+    learner = [Bus(open_session(ZenohConfig(connect=endpoint)), name)]  # the learner's session, swappable
+    learner[0].declare_alive("learner")
+    try:
+        listener.wait(lambda: len(listener.states) > 3, timeout=60)
+    except AssertionError:
+        proc.kill()
+        pytest.fail(f"robot-io did not come up:\n{proc.communicate()[0]}")
+    Robot.endpoint, Robot.learner = endpoint, learner
+    yield bus, listener, proc
+    learner[0].close()
+    bus.close()
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+class Robot:
+    endpoint: tuple[str, ...] = ()
+    learner: list[Bus] = []
+
+
+class Chunks:
+    seq = 0
+
+    @classmethod
+    def send(cls, bus: Bus, actions) -> int:
+        cls.seq += 1
+        pub = bus.session.declare_publisher(bus.key(m.CMD_CHUNK))
+        pub.put(
+            m.ActionChunk(seq=cls.seq, chunk_seq=cls.seq, actions=np.asarray(actions, float).ravel()).encode()
+        )
+        pub.undeclare()
+        return cls.seq
+
+
+def control(bus: Bus, command: str) -> None:
+    bus.session.put(bus.key(m.CONTROL), m.Control(command=command).encode())
+
+
+def test_01_reset_query_homes_the_arm(robot):
+    bus, listener, _ = robot
+    reply = bus.query(m.RESET, m.ResetRequest(seed=3), m.ResetReply, timeout=20)
+    assert reply.ok
+    state = m.decode(reply.state, m.RobotState)
+    np.testing.assert_allclose(state.ee_pos, [0.307, 0.0, 0.485], atol=2e-3)
+    assert state.mode == "running"
+
+
+def test_02_scripted_policy_reaches_the_moving_target(robot):
+    bus, listener, _ = robot
+    distances = []
+    t_end = time.monotonic() + 8.0
+    while time.monotonic() < t_end:
+        state, target = listener.latest(), listener.truth
+        ee, tgt = np.array(state.ee_pos), np.array(target.position)
+        distances.append(np.linalg.norm(ee - tgt))
+        aim = tgt + np.array(target.velocity) * 2 * PERIOD - ee
+        step = aim / max(1.0, np.linalg.norm(aim) / 0.04)
+        Chunks.send(bus, [step, step * 0.5])  # each chunk preempts the last
+        time.sleep(PERIOD)
+    assert distances[0] > 0.05
+    assert max(distances[-40:]) < 0.05, f"last 2 s: max distance {max(distances[-40:]):.3f} m"
+
+
+def test_03_newer_chunk_preempts_and_reports_dropped(robot):
+    bus, listener, _ = robot
+    first = Chunks.send(bus, np.tile([0.0, 0.0, 0.001], (40, 1)))
+    time.sleep(0.3)
+    second = Chunks.send(bus, np.tile([0.0, 0.0, -0.001], (2, 1)))
+    report = listener.wait(
+        lambda: [s for s in listener.status if s.chunk_seq == first and s.preempted_by == second], timeout=3
+    )[0]
+    assert report.executed >= 2 and report.dropped == 40 - report.executed and report.done
+    done = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == second and s.done], timeout=3)[
+        0
+    ]
+    assert done.executed == 2 and done.dropped == 0
+
+
+def test_04_watchdog_holds_when_commands_stop(robot):
+    bus, listener, _ = robot
+    before = len(listener.events("watchdog"))
+    Chunks.send(bus, np.tile([0.0, 0.03, 0.0], (6, 1)))  # moving, then silence
+    t_event, event = listener.wait(lambda: listener.events("watchdog")[before:], timeout=3)[0]
+    assert event.held
+    after = listener.wait(
+        lambda: [s for t, s in list(listener.states) if t > t_event + 2 * PERIOD], timeout=2
+    )
+    assert after[0].mode == "held" and max(abs(v) for v in after[0].dq) < 0.01
+    Chunks.send(bus, [[0.0, 0.0, 0.0]])  # a fresh command releases the watchdog hold
+    listener.wait(lambda: listener.latest().mode == "running", timeout=2)
+
+
+def test_05_estop_stops_the_arm_within_two_periods(robot):
+    bus, listener, _ = robot
+    Chunks.send(bus, np.tile([0.0, -0.05, 0.0], (40, 1)))
+    listener.wait(lambda: max(abs(v) for v in listener.latest().dq) > 0.3, timeout=3)
+    t_sent = time.monotonic()
+    control(bus, "estop")
+    t_event, event = listener.wait(lambda: listener.events("estop"), timeout=2)[0]
+    assert event.held and t_event - t_sent < PERIOD
+    settled = listener.wait(
+        lambda: [s for t, s in list(listener.states) if t > t_event + 2 * PERIOD], timeout=2
+    )
+    assert settled[0].mode == "estop" and max(abs(v) for v in settled[0].dq) < 0.01
+    refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
+    status = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == refused], timeout=2)[0]
+    assert status.executed == 0 and status.dropped == 1
+    control(bus, "release")
+    listener.wait(lambda: listener.latest().mode == "running", timeout=2)
+
+
+def test_06_learner_liveliness_loss_holds_the_arm(robot):
+    bus, listener, _ = robot
+    before = len(listener.events("liveliness"))
+    Robot.learner[0].close()  # the learner process goes away
+    _, event = listener.wait(lambda: listener.events("liveliness")[before:], timeout=3)[0]
+    assert "learner" in event.detail and event.held
+    listener.wait(lambda: listener.latest().mode == "held", timeout=2)
+    refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
+    time.sleep(3 * PERIOD)
+    assert listener.latest().mode == "held"
+    assert not [s for s in listener.status if s.chunk_seq == refused and s.executed > 0]
+    Robot.learner[0] = Bus(open_session(ZenohConfig(connect=Robot.endpoint)), bus.robot)
+    Robot.learner[0].declare_alive("learner")  # it restarts: the hold clears
+    listener.wait(lambda: listener.latest().mode == "running", timeout=3)
+
+
+def test_07_bad_bytes_are_reported_and_the_process_lives(robot):
+    bus, listener, proc = robot
+    before = len(listener.events("bad_message"))
+    bus.session.put(bus.key(m.CMD_CHUNK), b"\x00not a message")
+    _, event = listener.wait(lambda: listener.events("bad_message")[before:], timeout=2)[0]
+    assert "cmd/chunk" in event.detail
+    n = len(listener.states)
+    listener.wait(lambda: len(listener.states) > n + 5, timeout=2)
+    assert proc.poll() is None
