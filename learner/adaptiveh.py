@@ -67,7 +67,9 @@ class AdaptiveH:
         threshold = cfg.retreat_threshold
         if threshold is None:
             threshold = default_threshold(cfg.retreat, self.kernel, cfg.epsilon)
-        self.retreat = RetreatCheck(self.kernel, cfg.retreat, threshold, cfg.retreat_window)
+        self.retreat = RetreatCheck(
+            self.kernel, cfg.retreat, threshold, cfg.retreat_smoothing, cfg.policy_budget, cfg.policy_ald
+        )
         self.segment_limit = cfg.h_max if cfg.retreat != "off" else cfg.fixed_h
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
         self.rng = np.random.default_rng(seed)
@@ -196,7 +198,7 @@ class AdaptiveH:
             "critic": self.critic.state_dict(),
             "rng": self.rng.bit_generator.state,
             "log": self.log.to_dict(),
-            "retreat": (self.retreat.states, self.retreat.grads, self.retreat.trace),
+            "retreat": self.retreat.state_dict(),
             "obs": self._obs,
             "ep": (self._ep_return, self._ep_len, self._episode_seed),
             "nonfinite_skipped": self.nonfinite_skipped,
@@ -210,7 +212,7 @@ class AdaptiveH:
         self.critic.load_state_dict(state["critic"])
         self.rng.bit_generator.state = state["rng"]
         self.log = RunLog.from_dict(state["log"])
-        self.retreat.states, self.retreat.grads, self.retreat.trace = (list(x) for x in state["retreat"])
+        self.retreat.load_state_dict(state["retreat"])
         self._obs = state["obs"]
         self._ep_return, self._ep_len, self._episode_seed = state["ep"]
         self.nonfinite_skipped = state["nonfinite_skipped"]

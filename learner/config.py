@@ -31,8 +31,8 @@ class AdaptiveHConfig:
     critic_ald: float = 0.05
     critic_forgetting: float = 0.999
     critic_p0: float = 10.0
-    retreat: str = "cosine"  # cosine | literal | off
-    retreat_window: int = 3
+    retreat: str = "smoothed"  # smoothed | literal | off
+    retreat_smoothing: float = 0.05  # λ of the gradient-field average
     retreat_threshold: float | None = None  # None: derived from the paper (see learner/retreat.py)
     epsilon: float = 1.0  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = 50
@@ -61,7 +61,11 @@ class AdaptiveHConfig:
         )
         _check(self.critic_p0 > 0, "critic_p0", f"must be > 0, got {self.critic_p0}")
         _check(self.retreat in MODES, "retreat", f"must be one of {MODES}, got {self.retreat!r}")
-        _check(self.retreat_window >= 1, "retreat_window", f"must be >= 1, got {self.retreat_window}")
+        _check(
+            0.0 < self.retreat_smoothing <= 1.0,
+            "retreat_smoothing",
+            f"must be in (0, 1], got {self.retreat_smoothing}",
+        )
         _check(self.epsilon > 0, "epsilon", f"must be > 0, got {self.epsilon}")
         _check(self.h_max >= 1, "h_max", f"must be >= 1, got {self.h_max}")
         _check(self.fixed_h >= 1, "fixed_h", f"must be >= 1, got {self.fixed_h}")
