@@ -68,7 +68,12 @@ class AdaptiveH:
         if threshold is None:
             threshold = default_threshold(cfg.retreat, self.kernel, cfg.epsilon)
         self.retreat = RetreatCheck(
-            self.kernel, cfg.retreat, threshold, cfg.retreat_smoothing, cfg.policy_budget, cfg.policy_ald
+            self.kernel,
+            cfg.retreat,
+            threshold,
+            cfg.retreat_smoothing,
+            min(cfg.policy_budget, 100),
+            cfg.policy_ald,
         )
         self.segment_limit = cfg.h_max if cfg.retreat != "off" else cfg.fixed_h
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
