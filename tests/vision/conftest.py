@@ -38,6 +38,14 @@ def config() -> VisionConfig:
     return make_config()
 
 
+@pytest.fixture
 def workspace(scene: PandaScene) -> tuple[np.ndarray, np.ndarray]:
+    """The box the scene's target moves in (lo, hi)."""
     lo, hi = scene.motion.box
     return np.asarray(lo, float), np.asarray(hi, float)
+
+
+@pytest.fixture
+def vision_config():
+    """Factory: the test config with some fields overridden."""
+    return make_config

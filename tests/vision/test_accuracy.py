@@ -5,17 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from tests.vision.conftest import workspace
 from vision.cameras.sim import camera_from_config
 from vision.pipeline import VisionPipeline
 
 
-def test_3d_error_over_200_random_positions(scene, config):
+def test_3d_error_over_200_random_positions(scene, config, workspace):
     """Median < 1 cm, p95 < 2 cm, at 320x240 with depth noise and dropped pixels on, arm in view."""
     cam = camera_from_config(scene.client_id, config)
     assert config.sim.noise.enabled and config.sim.noise.dropout > 0
     pipeline = VisionPipeline(config)
-    lo, hi = workspace(scene)
+    lo, hi = workspace
     rng = np.random.default_rng(42)
     errors, missed = [], 0
     for _ in range(200):
@@ -31,7 +30,8 @@ def test_3d_error_over_200_random_positions(scene, config):
     errors = np.array(errors)
     median, p95 = np.median(errors), np.percentile(errors, 95)
     print(
-        f"3D error over {errors.size}: median {median * 1000:.1f} mm, p95 {p95 * 1000:.1f} mm, missed {missed}"
+        f"3D error over {errors.size}: median {median * 1000:.1f} mm, p95 {p95 * 1000:.1f} mm, "
+        f"missed {missed}"
     )
     assert missed == 0
     assert median < 0.01 and p95 < 0.02

@@ -62,7 +62,7 @@ def validate_frame(frame: Frame) -> None:
         raise FrameError(f"depth dtype {depth.dtype}, expected float metres")
     if not np.isfinite(depth).all():
         raise FrameError(f"depth has {int((~np.isfinite(depth)).sum())} NaN/inf pixels")
-    if not (depth > 0).any():
-        raise FrameError("depth is all zero (no valid pixel)")
     if (depth < 0).any():
         raise FrameError("depth has negative values")
+    if not (depth > 0).any():
+        raise FrameError("depth is all zero (no valid pixel)")
