@@ -180,13 +180,36 @@ def build_plan(
 
 
 def make_env(env: EnvSpec, seed: int) -> Any:
+    """The env at ``seed``, with only its first ``reset`` seeded (see ``_SeedOnce``)."""
     import gymnasium as gym
 
     import sim  # noqa: F401  (registers the NS environments)
 
-    if env.env_id == "NSReach-v0":
-        import sim.reach  # noqa: F401  (registers NSReach-v0 if sim/__init__ does not)
-    return gym.make(env.env_id, preset=env.preset, seed=seed)
+    kwargs = {"motion" if env.env_id == "NSReach-v0" else "preset": env.preset, "seed": seed}
+    return _seed_once(gym.make(env.env_id, **kwargs))
+
+
+def _seed_once(env: Any) -> Any:
+    """Pass a ``reset`` seed through only the first time.
+
+    AdaptiveH reseeds every episode (``reset(seed=k)``), SB3 only the first; on NS Reach a seeded reset
+    also redraws the target's motion, so without this the algorithms would face different schedules.
+    Seeding once gives every algorithm at a given seed the same world.
+    """
+    import gymnasium as gym
+
+    class _SeedOnce(gym.Wrapper):
+        def __init__(self, inner: gym.Env) -> None:
+            super().__init__(inner)
+            self._seeded = False
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
+            if self._seeded:
+                seed = None
+            self._seeded = self._seeded or seed is not None
+            return self.env.reset(seed=seed, options=options)
+
+    return _SeedOnce(env)
 
 
 def trailing_mean(steps: np.ndarray, returns: np.ndarray, at: np.ndarray, window: int) -> np.ndarray:
@@ -484,6 +507,9 @@ def summarize(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
             }
     h = {env: _h_stats(_group(plan, runs, env, "adaptiveh")) for env in SPEED_ENVS if env in plan.envs}
     missing = [r.name for r in plan.runs if r.name not in runs]
+    # A run finished under other hyperparameters than the plan's current ones (configs/*.yaml edited
+    # since): kept, as finished runs are never recomputed, but named so that nobody mistakes it.
+    stale = [r.name for r in plan.runs if r.name in runs and runs[r.name].get("config") != r.config]
     return {
         "plan": {
             "quick": plan.quick,
@@ -500,6 +526,7 @@ def summarize(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
         "H": h,
         "verdicts": verdicts(plan, runs, h),
         "missing_runs": missing,
+        "stale_runs": stale,
     }
 
 

@@ -1,0 +1,183 @@
+"""The paper pipeline on a tiny budget: every run, figure and summary field produced, finite, resumable."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from deploy import paper_bench as pb  # noqa: E402
+from deploy.cli import build_parser  # noqa: E402
+
+FIGURES = ("main_results.png", "fast_comparison.png", "h_window.png", "summary_bars.png")
+TINY = {
+    "td3": {"learning_starts": 50, "net_arch": [64, 64]},
+    "ddpg": {"learning_starts": 50, "net_arch": [64, 64]},
+}
+STEPS = 200
+
+
+def _finite_stat(stat: dict) -> None:
+    assert stat["n"] == 2
+    for key in ("mean", "lo", "hi"):
+        assert isinstance(stat[key], float) and math.isfinite(stat[key]), stat
+    assert stat["lo"] - 1e-9 <= stat["mean"] <= stat["hi"] + 1e-9
+
+
+pytestmark = pytest.mark.slow  # the tiny pipeline takes 1-3 minutes (one process per run)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("paper")
+    summary = pb.main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
+    return out, summary
+
+
+def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> None:
+    out, summary = tiny_run
+    assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
+    assert (
+        summary["plan"]["runs_total"] == summary["plan"]["runs_finished"] == 2 * len(pb.ENVS) * len(pb.ALGOS)
+    )
+    files = sorted((out / "runs").glob("*.json"))
+    assert len(files) == summary["plan"]["runs_total"]
+    for path in files:
+        run = json.loads(path.read_text())
+        assert run["global_step"] == STEPS  # equal budgets, exactly
+        assert 0 < run["wall_s"] and 20 < run["peak_rss_mb"] < 8000
+        steps = run["episodes"]["global_step"]
+        assert steps and steps == sorted(steps) and steps[-1] <= STEPS
+        assert len(run["episodes"]["ret"]) == len(steps)
+        if run["algo"] in ("adaptiveh", "rkhs"):
+            assert run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
+        if run["algo"] == "rkhs":
+            assert max(run["segments"]["H"]) <= run["config"].get("fixed_h", 10)
+        if run["env"].startswith("cartpole"):
+            assert "gravity" in run["episodes"]["info"]
+        if run["env"].startswith("reach"):
+            assert all(s is not None for s in run["episodes"]["success"])
+
+
+def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> None:
+    out, summary = tiny_run
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert pb.finite_leaves(on_disk) == []
+    assert set(on_disk["groups"]) == set(pb.ENVS)
+    for env, by_algo in on_disk["groups"].items():
+        assert set(by_algo) == set(pb.ALGOS)
+        for algo, g in by_algo.items():
+            assert g["n_runs"] == 2 and g["seeds"] == [0, 1], (env, algo)
+            for key in ("return_mean", "final_return", "steps_to_threshold", "wall_s", "peak_rss_mb"):
+                _finite_stat(g[key])
+            assert 0.0 <= g["reached_fraction"] <= 1.0
+            curve = g["curve"]
+            assert curve["n"] == 2 and len(curve["steps"]) >= 1
+            assert len(curve["steps"]) == len(curve["mean"]) == len(curve["lo"]) == len(curve["hi"])
+            assert all(math.isfinite(v) for v in curve["mean"] + curve["lo"] + curve["hi"])
+    for env in pb.SPEED_ENVS:
+        h = on_disk["H"][env]
+        assert h["n"] == 2 and h["segments"] > 0
+        _finite_stat(h["mean_H"])
+        assert abs(sum(h["histogram"]["fraction"]) - 1.0) < 1e-9
+        assert h["evolution"]["steps"] and len(h["evolution"]["mean"]) == len(h["evolution"]["steps"])
+    claims = {"outperforms_td3_ddpg", "faster_convergence", "h_narrows_when_faster"}
+    assert claims <= set(on_disk["verdicts"])
+    for claim in claims:
+        verdict = on_disk["verdicts"][claim]["verdict"]
+        assert verdict.split(" (")[0] in ("confirmed", "partly confirmed", "not confirmed")
+        for comp in on_disk["verdicts"][claim]["comparisons"].values():
+            assert comp["outcome"] in ("better", "tie", "worse")
+    assert set(on_disk["per_run"]) == {p.stem for p in (out / "runs").glob("*.json")}
+
+
+def test_figures_are_real_pngs(tiny_run: tuple[Path, dict]) -> None:
+    import matplotlib.image as mpimg
+
+    out, summary = tiny_run
+    assert sorted(summary["figures"]) == sorted(FIGURES)
+    for name in FIGURES:
+        img = mpimg.imread(out / name)
+        assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 300
+        assert float(np.std(img)) > 0.01  # not a blank canvas
+
+
+def test_finished_runs_are_never_recomputed_and_partial_sets_report(tiny_run: tuple[Path, dict]) -> None:
+    out, _ = tiny_run
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")}
+    again = pb.main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
+    assert again["last_invocation"]["ran"] == 0
+    assert again["last_invocation"]["skipped"] == len(stamps)
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")} == stamps
+
+    # A partial set (as while the full experiment is still running) still yields every figure, with
+    # the missing runs named and the incomplete groups counted.
+    partial = out / "partial"
+    (partial / "runs").mkdir(parents=True)
+    for name in stamps:
+        if "__s1__" not in name and "reach_slow__td3" not in name:
+            (partial / "runs" / name).write_bytes((out / "runs" / name).read_bytes())
+    summary = pb.main_paper(
+        quick=True, out=partial, jobs=1, seeds=2, steps=STEPS, report_only=True, progress=False
+    )
+    assert summary["last_invocation"]["ran"] == 0
+    assert len(summary["missing_runs"]) == len(pb.ENVS) * len(pb.ALGOS) + 1
+    assert f"reach_slow__td3__s0__{STEPS}" in summary["missing_runs"]
+    assert summary["groups"]["reach_slow"]["td3"]["n_runs"] == 0
+    assert summary["groups"]["reach_slow"]["td3"]["final_return"]["mean"] is None
+    assert summary["groups"]["cartpole_slow"]["adaptiveh"]["n_runs"] == 1
+    outcome = summary["verdicts"]["outperforms_td3_ddpg"]["comparisons"]["reach_slow:td3"]["outcome"]
+    assert outcome == "missing"
+    assert summary["verdicts"]["outperforms_td3_ddpg"]["verdict"] == "no data"  # one seed decides nothing
+    assert all((partial / f).is_file() for f in FIGURES)
+    assert pb.finite_leaves(json.loads((partial / "summary.json").read_text())) == []
+
+
+def test_run_metrics_definitions() -> None:
+    # Episodes ending at steps 100..1000 with returns 10, 20, ..., 100; budget 1000, threshold 55.
+    steps = list(range(100, 1001, 100))
+    rets = [float(r) for r in range(10, 101, 10)]
+    m = pb.run_metrics(steps, rets, 1000, 55.0)
+    assert m["return_mean"] == pytest.approx(55.0)
+    assert m["final_return"] == pytest.approx(100.0)  # only the episode ending at 1000 is in the last 10%
+    # trailing mean of 5 episodes first >= 55 at the 8th episode: (40+50+60+70+80)/5 = 60 (7th: 50)
+    assert m["steps_to_threshold"] == 800 and m["reached"] is True
+    never = pb.run_metrics(steps, rets, 1000, 1e9)
+    assert never["steps_to_threshold"] == 1000 and never["reached"] is False
+    assert m["curve"][0] is None  # no episode has ended by step 20
+    assert m["curve"][-1] == pytest.approx(80.0)
+
+
+def test_bootstrap_interval() -> None:
+    x = [1.0, 2.0, 3.0, 4.0, 5.0]
+    s = pb.bootstrap_mean(x)
+    assert s["mean"] == 3.0 and 1.0 < s["lo"] < 3.0 < s["hi"] < 5.0
+    assert pb.bootstrap_mean([7.0]) == {"mean": 7.0, "lo": 7.0, "hi": 7.0, "n": 1}
+    assert pb.bootstrap_mean([])["mean"] is None
+    d = pb.bootstrap_diff([10.0, 11.0, 12.0], [1.0, 2.0, 3.0])
+    assert d["diff"] == pytest.approx(9.0) and d["lo"] > 0
+    assert pb._sign(d) == "better" and pb._sign(d, higher_is_better=False) == "worse"
+    assert pb._sign(pb.bootstrap_diff([1.0, 5.0], [2.0, 4.0])) == "tie"
+
+
+def test_plan_is_seed_major_with_equal_budgets() -> None:
+    plan = pb.build_plan()
+    assert len(plan.runs) == 5 * len(pb.ENVS) * len(pb.ALGOS)
+    first_seed1 = next(i for i, r in enumerate(plan.runs) if r.seed == 1)
+    assert {(r.env, r.algo) for r in plan.runs[:first_seed1]} == {(e, a) for e in pb.ENVS for a in pb.ALGOS}
+    for env in pb.ENVS:
+        assert {r.steps for r in plan.runs if r.env == env} == {pb.ENVS[env].steps}
+    quick = pb.build_plan(quick=True)
+    assert quick.seeds == [0, 1] and all(r.steps == pb.ENVS[r.env].quick_steps for r in quick.runs)
+    with pytest.raises(ValueError, match="unknown env"):
+        pb.build_plan(envs=["nope"])
+
+
+def test_cli_registers_bench_paper() -> None:
+    args = build_parser().parse_args(["bench", "paper", "--quick", "--jobs", "1", "--report-only"])
+    assert args.quick and args.jobs == 1 and args.report_only and callable(args.func)
