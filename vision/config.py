@@ -202,7 +202,7 @@ class TrackingConfig:
     ``gate_sigma``: Mahalanobis gate rejecting measurements that jump implausibly far.
     """
 
-    accel_sigma: float = 1.0
+    accel_sigma: float = 0.4
     measurement_sigma: float = 0.004
     lost_after_s: float = 0.3
     gate_sigma: float = 6.0
@@ -255,7 +255,7 @@ class VisionConfig:
     """The whole ``vision:`` section."""
 
     camera: str = "sim"
-    rate_hz: float = 30.0  # the sim camera's frame rate (the physics owner renders at this rate)
+    rate_hz: float = 15.0  # the sim camera's frame rate (the physics owner renders at this rate)
     intrinsics: Intrinsics = field(default_factory=Intrinsics)
     extrinsics: Pose = field(default_factory=Pose)
     sim: SimCameraConfig = field(default_factory=SimCameraConfig)
