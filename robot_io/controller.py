@@ -63,9 +63,9 @@ class RobotController:
 
     # -- called from other threads -------------------------------------------------------------------
     def push_chunk(self, chunk_seq: int, actions: np.ndarray, now: float) -> bool:
-        """Queue a chunk (preempting the rest of the current one); refused while e-stopped or paused."""
+        """Queue a chunk (preempting the rest of the current one); refused while held, bar the watchdog."""
         with self._lock:
-            if self.safety.mode in ("estop", "paused"):
+            if not self.safety.accepts_commands():
                 return False
             accepted = self.queue.push(chunk_seq, actions)
             if accepted:

@@ -90,14 +90,18 @@ class Safety:
         return changed
 
     # -- watchdog ------------------------------------------------------------------------------------
+    def accepts_commands(self) -> bool:
+        """New chunks are taken when running or held only by the watchdog (which they clear)."""
+        return not self.reasons - {"watchdog"}
+
     def command_received(self, now: float) -> None:
         self.clear("watchdog", "fresh command")
         self.last_command = now
 
     def check_watchdog(self, now: float, queue_empty: bool) -> bool:
         """Hold when the queue has run dry and no fresh command came within the timeout."""
-        if not queue_empty or self.last_command is None:
-            return False
+        if not queue_empty or self.last_command is None or self.reasons - {"watchdog"}:
+            return False  # nothing to watch, or already held for another reason
         idle = now - self.last_command
         if idle > self.watchdog_timeout_s:
             return self.hold("watchdog", f"no command for {idle:.3f} s (timeout {self.watchdog_timeout_s} s)")

@@ -216,7 +216,12 @@ def test_06_learner_liveliness_loss_holds_the_arm(robot):
     assert not [s for s in listener.status if s.chunk_seq == refused and s.executed > 0]
     Robot.learner[0] = Bus(open_session(ZenohConfig(connect=Robot.endpoint)), bus.robot)
     Robot.learner[0].declare_alive("learner")  # it restarts: the hold clears
-    listener.wait(lambda: listener.latest().mode == "running", timeout=3)
+    try:
+        listener.wait(lambda: listener.latest().mode == "running", timeout=3)
+    except AssertionError as exc:
+        raise AssertionError(
+            f"mode {listener.latest().mode}; events {[e.kind for _, e in listener.safety][-6:]}"
+        ) from exc
 
 
 def test_07_bad_bytes_are_reported_and_the_process_lives(robot):

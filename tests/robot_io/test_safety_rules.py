@@ -54,3 +54,13 @@ def test_workspace_clip_and_one_event_per_excursion():
     s.clip_goal(np.array([0.5, 0.0, 0.3]))
     s.clip_goal(np.array([0.5, 0.0, 0.0]))
     assert kinds(s) == ["workspace", "workspace"]
+
+
+def test_watchdog_does_not_stack_on_other_holds_and_restarts_after_release():
+    s = make()
+    s.command_received(10.0)
+    s.hold("liveliness", "learner gone")
+    assert not s.accepts_commands()
+    assert not s.check_watchdog(20.0, queue_empty=True)
+    s.clear("liveliness", "learner back")
+    assert s.mode == RUNNING and not s.check_watchdog(20.1, queue_empty=True)
