@@ -64,6 +64,11 @@ class VisionPipeline:
         estimate = self.tracker.update(stamp, point)
         return PipelineOutput(stamp, estimate, det, point, None, self.detector.last_reason)
 
+    def idle(self, stamp: float, error: str | None = None) -> PipelineOutput:
+        """The track at ``stamp`` when no usable frame came (camera silent, undecodable frame)."""
+        estimate = self.tracker.estimate(float(stamp))
+        return PipelineOutput(float(stamp), estimate, None, None, error, "no frame")
+
 
 def annotate(frame: Frame, output: PipelineOutput, width: int = 320, jpeg_quality: int = 70) -> bytes:
     """A downscaled JPEG of the frame with the detection and track status drawn (for the monitor)."""

@@ -1,0 +1,283 @@
+"""The vision process: camera frames in, ``target`` out, over Zenoh.
+
+Frames come from the ``camera/frame`` topic in simulation (rendered by the physics owner, the
+robot-io mock, with ``SimFramePublisher`` below) or straight from a RealSense on the real robot; both
+feed the same ``vision.pipeline.VisionPipeline``. Every frame gives one ``Target`` (``valid`` False
+when lost); a downscaled annotated JPEG goes to ``camera/annotated`` at a low rate. Bad frames, bad
+messages and camera errors become ``events/safety`` messages (kinds ``bad_frame``, ``bad_message``,
+``camera_error``; ``held`` False: vision never holds the arm itself), rate-limited, and the process
+keeps running. Only the newest frame is processed: if processing falls behind, older frames are
+dropped (counted), so latency stays bounded.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from deploy import messages as m
+from deploy.config import ConfigError, build, load_yaml
+from deploy.transport import Bus, ZenohConfig, open_session
+from vision.cameras.protocol import Camera, CameraError, Frame
+from vision.config import Intrinsics, VisionConfig
+from vision.pipeline import PipelineOutput, VisionPipeline, annotate
+
+log = logging.getLogger(__name__)
+EVENT_INTERVAL_S = 1.0  # at most one event per kind per second (with a count of the suppressed ones)
+
+
+@dataclass(frozen=True)
+class VisionSettings:
+    name: str
+    zenoh: ZenohConfig
+    vision: VisionConfig
+
+
+def load_vision_config(data: dict[str, Any] | None, where: str = "vision") -> VisionConfig:
+    """Build the ``vision:`` section (also used by the physics owner to set up the sim camera)."""
+    return build(VisionConfig, data, where)
+
+
+def load_settings(path: str | Path) -> VisionSettings:
+    """Read ``name``, ``zenoh`` and ``vision`` from a top-level config (other sections are others')."""
+    data = load_yaml(path)
+    name = data.get("name", "panda")
+    if not isinstance(name, str) or not name or "/" in name or "*" in name:
+        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    return VisionSettings(
+        name=name,
+        zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
+        vision=load_vision_config(data.get("vision"), f"{path}: vision"),
+    )
+
+
+# -- frames <-> messages -----------------------------------------------------------------------------
+def frame_message(frame: Frame, seq: int, depth_scale: float = 0.001) -> m.CameraFrame:
+    """A ``CameraFrame`` of ``frame``: depth quantised to uint16 in units of ``depth_scale`` metres."""
+    k = frame.intrinsics
+    depth = np.clip(np.round(frame.depth / depth_scale), 0, 65535).astype(np.uint16)
+    return m.CameraFrame(
+        seq=seq,
+        width=k.width,
+        height=k.height,
+        rgb=np.ascontiguousarray(frame.rgb, np.uint8).tobytes(),
+        depth=depth.tobytes(),
+        depth_scale=depth_scale,
+        intrinsics=[k.fx, k.fy, k.cx, k.cy],
+        frame_stamp=frame.stamp,
+    )
+
+
+def frame_from_message(msg: m.CameraFrame) -> Frame:
+    """The ``Frame`` in a ``CameraFrame``; raises ``MessageError`` when sizes or intrinsics are wrong."""
+    rgb, depth = msg.images()
+    fx, fy, cx, cy = msg.intrinsics
+    try:
+        k = Intrinsics(msg.width, msg.height, fx, fy, cx, cy)
+    except ValueError as exc:
+        raise m.MessageError(f"CameraFrame.intrinsics: {exc}") from None
+    return Frame(rgb=rgb, depth=depth, intrinsics=k, stamp=msg.frame_stamp, seq=msg.seq)
+
+
+def target_message(out: PipelineOutput, seq: int) -> m.Target:
+    est = out.estimate
+    return m.Target(
+        seq=seq,
+        position=[float(x) for x in est.position],
+        velocity=[float(x) for x in est.velocity],
+        covariance=[float(x) for x in np.asarray(est.covariance).ravel()],
+        valid=bool(est.valid),
+        frame_stamp=out.frame_stamp,
+    )
+
+
+class SimFramePublisher:
+    """For the physics owner: render the scene's client and publish ``camera/frame``.
+
+    Use: ``node.add_periodic(cfg.rate_hz, SimFramePublisher(bus, scene.client_id, cfg))``. It renders
+    on the caller's thread (PyBullet is single-owner) and never raises: a render failure is logged.
+    """
+
+    def __init__(self, bus: Bus, client_id: int, config: VisionConfig) -> None:
+        from vision.cameras.sim import camera_from_config
+
+        self.camera = camera_from_config(client_id, config)
+        self._publish = bus.publisher(m.CAMERA)
+        self.seq = 0
+        self.render_s = 0.0
+
+    def __call__(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            frame = self.camera.capture()
+        except CameraError as exc:
+            log.warning("sim camera: %s", exc)
+            return
+        self.seq += 1
+        self._publish(frame_message(frame, self.seq))
+        self.render_s = time.perf_counter() - t0
+
+
+# -- the node ----------------------------------------------------------------------------------------
+class VisionNode:
+    """Run with ``start()``/``stop()``. ``camera`` overrides the RealSense (tests, other devices)."""
+
+    def __init__(self, settings: VisionSettings, camera: Camera | None = None) -> None:
+        self.settings = settings
+        self.config = settings.vision
+        self.pipeline = VisionPipeline(self.config)
+        self.bus = Bus(open_session(settings.zenoh), settings.name)
+        self._pub_target = self.bus.publisher(m.TARGET)
+        self._pub_image = self.bus.publisher(m.CAMERA_ANNOTATED, express=False)
+        self._pub_event = self.bus.publisher(m.EVENTS_SAFETY)
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._pending: Frame | m.CameraFrame | None = None
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._seq = {"target": 0, "image": 0, "event": 0}
+        self._events: dict[str, tuple[float, int]] = {}
+        self._last_image = 0.0
+        self._last_frame_wall = time.time()
+        self.frames = 0
+        self.dropped = 0
+        self.camera = camera
+        if self.config.camera == "sim" and camera is None:
+            self.bus.subscribe(m.CAMERA, m.CameraFrame, self._offer, on_bad=self._on_bad)
+        elif camera is None:
+            from vision.cameras.realsense import RealSenseCamera
+
+            self.camera = RealSenseCamera(self.config.realsense)
+        self.bus.declare_alive("vision")
+
+    # -- inputs ------------------------------------------------------------------------------------
+    def _offer(self, item: Frame | m.CameraFrame) -> None:
+        with self._wake:
+            if self._pending is not None:
+                self.dropped += 1
+            self._pending = item
+            self._wake.notify()
+
+    def _on_bad(self, topic: str, exc: Exception) -> None:
+        self.event("bad_message", f"{topic}: {exc}", key=topic)
+
+    def _capture_loop(self) -> None:
+        assert self.camera is not None
+        while not self._stop.is_set():
+            try:
+                frame = self.camera.capture()
+            except CameraError as exc:
+                self.event("camera_error", str(exc))
+                self._stop.wait(0.05)
+                continue
+            self._offer(frame)
+
+    # -- outputs -----------------------------------------------------------------------------------
+    def _next(self, name: str) -> int:
+        self._seq[name] += 1
+        return self._seq[name]
+
+    def event(self, kind: str, detail: str, key: str | None = None) -> None:
+        """Publish ``events/safety`` (kind, ``vision: detail``), at most once a second per ``key``.
+
+        ``key`` (default: the detail) groups repeats of one problem, so a camera stuck on bad frames
+        sends one event a second with a count, while a different problem is reported at once.
+        """
+        now = time.monotonic()
+        key = f"{kind}:{key if key is not None else detail}"
+        with self._lock:
+            last, suppressed = self._events.get(key, (-1e9, 0))
+            if now - last < EVENT_INTERVAL_S:
+                self._events[key] = (last, suppressed + 1)
+                return
+            self._events[key] = (now, 0)
+            seq = self._next("event")
+        more = f" (+{suppressed} more since the last report)" if suppressed else ""
+        log.warning("vision %s: %s%s", kind, detail, more)
+        self._pub_event(m.SafetyEvent(seq=seq, kind=kind, detail=f"vision: {detail}{more}", held=False))
+
+    def _handle(self, item: Frame | m.CameraFrame) -> None:
+        if isinstance(item, m.CameraFrame):
+            try:
+                frame = frame_from_message(item)
+            except m.MessageError as exc:
+                self.event("bad_frame", str(exc))
+                self._publish_target(self.pipeline.idle(time.time(), str(exc)))
+                return
+        else:
+            frame = item
+        out = self.pipeline.process(frame)
+        self.frames += 1
+        if out.error is not None:
+            self.event("bad_frame", f"frame {frame.seq}: {out.error}", key=out.error)
+        self._publish_target(out)
+        rate = self.config.annotated.rate_hz
+        now = time.monotonic()
+        if rate > 0 and now - self._last_image >= 1.0 / rate:
+            self._last_image = now
+            a = self.config.annotated
+            jpeg = annotate(frame, out, a.width, a.jpeg_quality)
+            self._pub_image(
+                m.AnnotatedImage(seq=self._next("image"), jpeg=jpeg, detected=out.detection is not None)
+            )
+
+    def _publish_target(self, out: PipelineOutput) -> None:
+        self._pub_target(target_message(out, self._next("target")))
+
+    def _process_loop(self) -> None:
+        lost_after = self.config.tracking.lost_after_s
+        while not self._stop.is_set():
+            with self._wake:
+                if self._pending is None:
+                    self._wake.wait(timeout=lost_after / 2)
+                item, self._pending = self._pending, None
+            if item is None:
+                # No frames at all (camera or renderer gone): still say the target is lost, on time.
+                if time.time() - self._last_frame_wall > lost_after:
+                    self._publish_target(self.pipeline.idle(time.time()))
+                continue
+            self._last_frame_wall = time.time()
+            try:
+                self._handle(item)
+            except Exception as exc:  # a pipeline bug must not end the process
+                log.exception("vision pipeline failed")
+                self.event("bad_frame", f"pipeline error: {type(exc).__name__}: {exc}")
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+    def start(self) -> VisionNode:
+        self._threads = [threading.Thread(target=self._process_loop, name="vision-process", daemon=True)]
+        if self.camera is not None:
+            self._threads.append(
+                threading.Thread(target=self._capture_loop, name="vision-capture", daemon=True)
+            )
+        for t in self._threads:
+            t.start()
+        return self
+
+    def request_stop(self) -> None:
+        self._stop.set()
+        with self._wake:
+            self._wake.notify_all()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._stop.wait(timeout)
+
+    def stop(self) -> None:
+        self.request_stop()
+        for t in self._threads:
+            t.join(timeout=5.0)
+        if self.camera is not None:
+            self.camera.close()
+        self.bus.close()
+
+    def __enter__(self) -> VisionNode:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
