@@ -223,6 +223,7 @@ class AdaptiveH:
         self.nonfinite_skipped = state["nonfinite_skipped"]
         set_state = getattr(self.env.unwrapped, "set_state", None)
         if state["env"] is not None and callable(set_state):
+            self.env.reset()  # wrappers (gym.make's OrderEnforcing) refuse step() before a reset
             set_state(state["env"])
         else:
             self._obs = None  # the env cannot be restored: resume at a fresh episode
