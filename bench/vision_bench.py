@@ -1,0 +1,205 @@
+"""Vision benchmark: detection + deprojection speed, sim render speed, end-to-end latency over Zenoh.
+
+    python bench/vision_bench.py [--config configs/sim.yaml] [--seconds 10] [--out results/vision_bench.json]
+
+1. Detection + deprojection (+ base-frame transform) at 640x480 on one core (CPU affinity 1 core,
+   OpenCV single-threaded), on rendered frames of the Panda scene; also the full per-frame pipeline
+   (validation, detection, deprojection, tracking).
+2. Sim render (PyBullet TinyRenderer, with depth conversion and noise) at the configured size and at
+   640x480, of the full scene (Panda, table, target).
+3. End to end: this process renders and publishes ``camera/frame`` at the configured rate (as the
+   robot-io mock does); ``adaptiveh vision`` runs in another process; this process receives
+   ``target``. Latency from the frame's capture stamp (taken before rendering, like a camera's
+   exposure stamp) to receipt, and from publication to receipt (render time excluded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pybullet as pb
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from deploy import messages as m  # noqa: E402
+from deploy.transport import Bus, ZenohConfig, open_session  # noqa: E402
+from deploy.vision_node import SimFramePublisher, load_settings, load_vision_config  # noqa: E402
+from sim.panda_scene import PandaScene  # noqa: E402
+from vision.cameras.sim import SimRGBDCamera  # noqa: E402
+from vision.pipeline import VisionPipeline  # noqa: E402
+
+
+def _rate(fn, seconds: float = 3.0, min_iters: int = 20) -> float:
+    n, t0 = 0, time.perf_counter()
+    while n < min_iters or time.perf_counter() - t0 < seconds:
+        fn(n)
+        n += 1
+    return n / (time.perf_counter() - t0)
+
+
+def bench_detection(vision, scene: PandaScene) -> dict:
+    k = vision.intrinsics.scaled(640, 480)
+    camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
+    rng = np.random.default_rng(0)
+    lo, hi = (np.asarray(b) for b in scene.motion.box)
+    frames = []
+    for _ in range(20):
+        p = rng.uniform(lo, hi).tolist()
+        pb.resetBasePositionAndOrientation(scene.target_id, p, [0, 0, 0, 1], physicsClientId=scene.client_id)
+        frames.append(camera.capture())
+    pipeline = VisionPipeline(vision)
+    located = _rate(lambda i: pipeline.locate(frames[i % len(frames)]))
+    stamp0 = time.time()
+
+    def full(i: int) -> None:
+        f = frames[i % len(frames)]
+        pipeline.process(type(f)(f.rgb, f.depth, f.intrinsics, stamp0 + i / 30.0, i))
+
+    return {
+        "size": "640x480",
+        "detect_deproject_fps": round(located, 1),
+        "full_pipeline_fps": round(_rate(full), 1),
+    }
+
+
+def bench_render(vision, scene: PandaScene) -> dict:
+    out = {}
+    for label, k in (("configured", vision.intrinsics), ("640x480", vision.intrinsics.scaled(640, 480))):
+        camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
+        fps = _rate(lambda i, c=camera: (scene.step(1), c.capture()), seconds=4.0, min_iters=10)
+        out[label] = {"size": f"{k.width}x{k.height}", "fps": round(fps, 1)}
+    return out
+
+
+def bench_latency(config_path: Path, seconds: float) -> dict:
+    raw = yaml.safe_load(config_path.read_text())
+    port = random.randint(20000, 60000)
+    raw["name"] = f"bench{random.randint(0, 10**6)}"
+    raw["zenoh"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}
+    tmp = Path(tempfile.mkdtemp(prefix="vision_bench_")) / "config.yaml"
+    tmp.write_text(yaml.safe_dump(raw))
+    vision = load_vision_config(raw["vision"])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "vision", "--config", str(tmp), "--log-level", "WARNING"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), raw["name"])
+    received: dict[float, float] = {}
+    alive = threading.Event()
+    lock = threading.Lock()
+
+    def on_target(t: m.Target) -> None:
+        now = time.time()
+        with lock:
+            received.setdefault(round(t.frame_stamp, 6), now)
+
+    bus.subscribe(m.TARGET, m.Target, on_target)
+    bus.watch_alive(lambda name, up: alive.set() if name == "vision" and up else None)
+    scene = PandaScene(motion="slow", seed=1)
+    published: dict[float, float] = {}
+    valid = 0
+    try:
+        if not alive.wait(60):
+            raise RuntimeError(f"vision process did not start:\n{proc.communicate(timeout=5)[0]}")
+        publisher = SimFramePublisher(bus, scene.client_id, vision)
+        capture = publisher.camera.capture
+
+        def stamped_capture():
+            frame = capture()
+            stamped_capture.last = frame.stamp
+            return frame
+
+        publisher.camera.capture = stamped_capture  # type: ignore[method-assign]
+        period = 1.0 / vision.rate_hz
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            t0 = time.monotonic()
+            scene.step(scene.steps_for(period))
+            publisher()
+            published[round(stamped_capture.last, 6)] = time.time()
+            time.sleep(max(0.0, period - (time.monotonic() - t0)))
+        time.sleep(1.0)
+        valid = len(received)
+    finally:
+        scene.close()
+        bus.close()
+        proc.terminate()
+        proc.wait(timeout=10)
+    with lock:
+        pairs = [(s, published[s], received[s]) for s in published if s in received]
+    capture_to_target = np.array([r - s for s, _, r in pairs]) * 1000
+    publish_to_target = np.array([r - p for _, p, r in pairs]) * 1000
+    return {
+        "frames_published": len(published),
+        "targets_received": len(pairs),
+        "target_messages_distinct": valid,  # includes lost reports sent while no frame came
+        "size": f"{vision.intrinsics.width}x{vision.intrinsics.height}",
+        "rate_hz": vision.rate_hz,
+        "capture_to_target_ms": {
+            "p50": round(float(np.percentile(capture_to_target, 50)), 1),
+            "p99": round(float(np.percentile(capture_to_target, 99)), 1),
+        },
+        "publish_to_target_ms": {
+            "p50": round(float(np.percentile(publish_to_target, 50)), 1),
+            "p99": round(float(np.percentile(publish_to_target, 99)), 1),
+        },
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--config", default=str(ROOT / "configs" / "sim.yaml"))
+    ap.add_argument("--seconds", type=float, default=10.0, help="end-to-end run length")
+    ap.add_argument("--out", default=str(ROOT / "results" / "vision_bench.json"))
+    args = ap.parse_args()
+    vision = load_settings(args.config).vision
+    scene = PandaScene(motion="slow", seed=0)
+    original = os.sched_getaffinity(0)
+    cores_available = len(original)
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core for the in-process parts
+    cv2.setNumThreads(1)
+    try:
+        detection = bench_detection(vision, scene)
+        render = bench_render(vision, scene)
+    finally:
+        scene.close()
+        os.sched_setaffinity(0, original)
+    latency = bench_latency(Path(args.config), args.seconds)
+    result = {
+        "machine": {
+            "cpu": platform.processor() or platform.machine(),
+            "cores_available": cores_available,
+            "load_avg_1min": round(os.getloadavg()[0], 2),
+            "python": platform.python_version(),
+            "opencv": cv2.__version__,
+        },
+        "note": "in-process parts pinned to one core; the machine is shared, so treat rates as lower bounds",
+        "detection": detection,
+        "sim_render": render,
+        "end_to_end": latency,
+    }
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
