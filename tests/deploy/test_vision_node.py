@@ -194,3 +194,65 @@ def test_frame_message_round_trip():
     bad = m.CameraFrame(**{**frame_message(frame, 7).__dict__, "intrinsics": [-1.0, 11.0, 4.5, 3.5]})
     with pytest.raises(m.MessageError, match="fx, fy must be > 0"):
         frame_from_message(bad)
+
+
+class ScriptedCamera:
+    """A camera (the RealSense path of the node) that serves rendered frames, then fails."""
+
+    def __init__(self, frames: list[Frame], failures: int) -> None:
+        self.frames, self.failures, self.closed = list(frames), failures, False
+        self.intrinsics = frames[0].intrinsics
+
+    def capture(self) -> Frame:
+        time.sleep(1 / 30)
+        if self.frames:
+            f = self.frames.pop(0)
+            return Frame(f.rgb, f.depth, f.intrinsics, time.time(), f.seq)
+        from vision.cameras.protocol import CameraError
+
+        if self.failures > 0:
+            self.failures -= 1
+        raise CameraError("realsense 000: no frame within 100 ms (scripted)")
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_device_camera_path_reports_camera_errors_and_loses_target():
+    """``camera: realsense`` nodes capture in their own thread; a dying camera gives camera_error
+    events and a lost target on time, never a crash."""
+    from deploy.vision_node import VisionNode, VisionSettings
+
+    port = random.randint(20000, 60000)
+    name = f"d{random.randint(0, 10**9)}"
+    vision = load_vision_config({**VISION, "camera": "realsense"})
+    with PandaScene(motion="static", seed=2) as scene:
+        from vision.cameras.sim import camera_from_config
+
+        render = camera_from_config(scene.client_id, vision)
+        frames = [render.capture() for _ in range(10)]
+    camera = ScriptedCamera(frames, failures=1000)
+    settings = VisionSettings(name, ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)), vision)
+    node = VisionNode(settings, camera=camera)
+    bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
+    inbox = Inbox(bus)
+    try:
+        inbox.wait(lambda: "vision" in inbox.alive)
+        node.start()
+        inbox.wait(lambda: any(t.valid for _, t in inbox.targets))
+        inbox.wait(lambda: any(e.kind == "camera_error" for e in inbox.events))
+        with inbox.lock:
+            last_valid = max(r for r, t in inbox.targets if t.valid)
+        _, lost = inbox.wait(
+            lambda: next(((r, t) for r, t in inbox.targets if r > last_valid and not t.valid), None)
+        )
+        assert lost.frame_stamp - last_valid <= LOST_AFTER + 0.3
+        time.sleep(1.2)
+        with inbox.lock:
+            errors = [e for e in inbox.events if e.kind == "camera_error"]
+        assert 1 <= len(errors) <= 3 and "more since the last report" in errors[-1].detail  # rate-limited
+        assert node.frames == 10
+    finally:
+        node.stop()
+        bus.close()
+    assert camera.closed
