@@ -165,11 +165,18 @@ def test_bootstrap_interval() -> None:
     assert pb._sign(pb.bootstrap_diff([1.0, 5.0], [2.0, 4.0])) == "tie"
 
 
-def test_plan_is_seed_major_with_equal_budgets() -> None:
+def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> None:
     plan = pb.build_plan()
     assert len(plan.runs) == 5 * len(pb.ENVS) * len(pb.ALGOS)
+    assert len(set(plan.runs)) == len(plan.runs)
+    sb3 = [r.algo in ("td3", "ddpg") for r in plan.runs]
+    assert sb3 == sorted(sb3)  # every RKHS-learner run before the first TD3/DDPG run
+    seeds = [r.seed for r in plan.runs if r.algo in ("td3", "ddpg")]
+    assert seeds == sorted(seeds)
     first_seed1 = next(i for i, r in enumerate(plan.runs) if r.seed == 1)
-    assert {(r.env, r.algo) for r in plan.runs[:first_seed1]} == {(e, a) for e in pb.ENVS for a in pb.ALGOS}
+    assert {(r.env, r.algo) for r in plan.runs[:first_seed1]} == {
+        (e, a) for e in pb.ENVS for a in ("adaptiveh", "rkhs")
+    }
     for env in pb.ENVS:
         assert {r.steps for r in plan.runs if r.env == env} == {pb.ENVS[env].steps}
     quick = pb.build_plan(quick=True)
