@@ -212,7 +212,7 @@ class RobotIONode:
             resets, self._resets = self._resets, []
         for seed, done, box in resets:
             try:
-                state = self.controller.reset(seed)
+                state = self.controller.reset(seed if seed >= 0 else None)  # -1: keep the target's motion
                 reply = m.ResetReply(ok=True, state=self._snapshot(state).encode())
             except Exception as exc:
                 log.exception("reset failed")

@@ -1,0 +1,65 @@
+"""``adaptiveh learn``: run the learner process alone (it finds the robot over Zenoh)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "learn", help="run the learner (AdaptiveH/RKHS/TD3/DDPG) against the robot over Zenoh"
+    )
+    p.add_argument(
+        "--config", default="configs/sim.yaml", help="top-level YAML (name, zenoh, robot, learner)"
+    )
+    p.add_argument("--algo", default=None, help="override learner.algo")
+    p.add_argument(
+        "--steps", type=int, default=None, help="override learner.steps (total, including resumed)"
+    )
+    p.add_argument("--checkpoint-dir", default=None, help="override learner.checkpoint_dir")
+    p.add_argument("--token", default="", help="operator token required on pause/resume")
+    p.add_argument("--log-level", default="INFO")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from deploy.config import ConfigError
+    from deploy.learner_node import LearnerNode, load_settings
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
+    try:
+        settings = load_settings(args.config, overrides)
+    except ConfigError as exc:
+        logging.error("%s", exc)
+        return 2
+    node = LearnerNode(settings, control_token=args.token)
+    signal.signal(signal.SIGTERM, lambda *_: node.request_stop())
+    signal.signal(signal.SIGINT, lambda *_: node.request_stop())
+    logging.info(
+        "learner %s on '%s': %d steps (resuming at %d), checkpoints in %s",
+        settings.learner.algo,
+        settings.name,
+        settings.learner.steps,
+        node.resumed_from,
+        node.ckpt.parent,
+    )
+    try:
+        result = node.run()
+    finally:
+        node.close()
+    json.dump(
+        {
+            "summary": result["summary"],
+            "dropped_actions": result["dropped_actions"],
+            "retreat_preemptions": result["retreat_preemptions"],
+        },
+        sys.stdout,
+        default=float,
+    )
+    print()
+    return 0
