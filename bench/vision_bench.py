@@ -85,6 +85,50 @@ def bench_render(vision, scene: PandaScene) -> dict:
     return out
 
 
+def bench_tracking(vision, seconds: float = 10.0) -> dict:
+    """Tracking the scene's own target motion presets at the configured size and rate.
+
+    The presets turn the heading by a random walk (rough at short time scales), so the truth is the
+    target's mean velocity over each frame interval. Reported, not asserted (the tests assert on
+    smooth paths at the same speeds).
+    """
+    out = {}
+    for preset in ("slow", "fast"):
+        scene = PandaScene(motion=preset, seed=7)
+        camera = SimRGBDCamera(scene.client_id, vision.intrinsics, vision.sim_pose(), vision.sim)
+        pipeline = VisionPipeline(vision)
+        n = scene.steps_for(1.0 / vision.rate_hz)
+        pos_err, v_true, v_est = [], [], []
+        for _ in range(round(seconds * vision.rate_hz)):
+            p0 = scene.target_pose()[0]
+            scene.step(n)
+            p1 = scene.target_pose()[0]
+            f = camera.capture()
+            est = pipeline.process(type(f)(f.rgb, f.depth, f.intrinsics, scene.time, f.seq)).estimate
+            if scene.time > 1.0 and est.valid:
+                pos_err.append(np.linalg.norm(est.position - p1))
+                v_true.append((p1 - p0) / (n * scene.time_step))
+                v_est.append(est.velocity)
+        scene.close()
+        vt, ve = np.array(v_true), np.array(v_est)
+        speed_rms = np.sqrt(np.mean(np.sum(vt**2, axis=1)))
+        rms = np.sqrt(np.mean(np.sum((ve - vt) ** 2, axis=1))) / speed_rms
+        jump = np.sqrt(np.mean(np.sum(np.diff(vt, axis=0) ** 2, axis=1))) / speed_rms
+        out[preset] = {
+            "frames": len(pos_err),
+            "mean_speed_m_s": round(float(np.mean(np.linalg.norm(vt, axis=1))), 3),
+            "position_error_mm": {
+                "median": round(1000 * float(np.median(pos_err)), 1),
+                "p95": round(1000 * float(np.percentile(pos_err, 95)), 1),
+            },
+            "velocity_rms_error_rel": round(float(rms), 3),
+            # How much the true velocity itself changes from one frame to the next (relative RMS):
+            # a causal estimator lags by about a frame, so this is roughly its floor on this motion.
+            "truth_frame_to_frame_change_rel": round(float(jump), 3),
+        }
+    return out
+
+
 def bench_latency(config_path: Path, seconds: float) -> dict:
     raw = yaml.safe_load(config_path.read_text())
     port = random.randint(20000, 60000)
@@ -178,6 +222,7 @@ def main() -> int:
     try:
         detection = bench_detection(vision, scene)
         render = bench_render(vision, scene)
+        tracking = bench_tracking(vision)
     finally:
         scene.close()
         os.sched_setaffinity(0, original)
@@ -193,6 +238,7 @@ def main() -> int:
         "note": "in-process parts pinned to one core; the machine is shared, so treat rates as lower bounds",
         "detection": detection,
         "sim_render": render,
+        "tracking_scene_presets": tracking,
         "end_to_end": latency,
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
