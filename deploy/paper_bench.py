@@ -274,6 +274,29 @@ def execute_run(spec: RunSpec, out_dir: str) -> dict[str, Any]:
         return {"name": spec.name, "error": traceback.format_exc(limit=8)}
 
 
+def code_version() -> dict[str, Any]:
+    """The commit of the source tree this process imports, and whether its code/configs differ from it."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    paths = ["learner", "sim", "robot_io", "configs", "deploy/paper_bench.py"]
+    try:
+        git = ["git", "-C", str(root)]
+        commit = subprocess.run(
+            [*git, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=20, check=True
+        )
+        dirty = subprocess.run(
+            [*git, "status", "--porcelain", "--", *paths],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None, "root": str(root)}
+    return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip()), "root": str(root)}
+
+
 def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
     from learner.registry import make_agent
 
@@ -302,6 +325,7 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
         "steps_per_s": log.global_step / wall if wall > 0 else None,
         "peak_rss_mb": peak_kb / 1024.0,
         "python": sys.version.split()[0],
+        "code": code_version(),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "metrics": run_metrics(
             [e.global_step for e in eps], [e.ret for e in eps], spec.steps, env_spec.threshold
@@ -546,7 +570,14 @@ def summarize(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
         "verdicts": verdicts(plan, runs, h),
         "missing_runs": missing,
         "stale_runs": stale,
+        # Which code produced the runs: commits (with run counts) and runs made from a modified tree.
+        "code_commits": _count([str((r.get("code") or {}).get("commit")) for r in runs.values()]),
+        "dirty_runs": sorted(n for n, r in runs.items() if (r.get("code") or {}).get("dirty") is not False),
     }
+
+
+def _count(items: list[str]) -> dict[str, int]:
+    return {k: items.count(k) for k in sorted(set(items))}
 
 
 def _vals(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key: str) -> list[float]:
@@ -589,7 +620,7 @@ def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> 
                 )
                 comps[f"{env}:{rival}"] = {**d, "outcome": _sign(d, higher)}
         out[claim] = {
-            "metric": key,
+            "metric": f"{key}, AdaptiveH minus rival",
             "comparisons": comps,
             "verdict": _overall([c["outcome"] for c in comps.values()]),
         }
@@ -728,6 +759,7 @@ def report(plan: Plan, out_dir: Path) -> dict[str, Any]:
     runs = load_runs(plan, out_dir)
     summary = summarize(plan, runs)
     summary["figures"] = [p.name for p in make_figures(plan, summary, out_dir)]
+    summary["tables"] = write_markdown(summary, out_dir).name
     summary["per_run"] = {
         name: {
             "wall_s": r["wall_s"],
@@ -741,17 +773,87 @@ def report(plan: Plan, out_dir: Path) -> dict[str, Any]:
     return summary
 
 
-def format_verdicts(summary: dict[str, Any]) -> str:
-    lines = [f"runs finished: {summary['plan']['runs_finished']}/{summary['plan']['runs_total']}"]
+def _fmt(stat: dict[str, Any], digits: int = 0) -> str:
+    if not stat or stat.get("mean") is None:
+        return "—"
+    if stat["n"] == 1:
+        return f"{stat['mean']:.{digits}f} (1 seed)"
+    return f"{stat['mean']:.{digits}f} [{stat['lo']:.{digits}f}, {stat['hi']:.{digits}f}]"
+
+
+def write_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
+    """``summary.md``: the tables and verdicts the README quotes, generated so no number is hand-copied."""
+    plan = summary["plan"]
+    lines = [
+        "# Paper experiments: results",
+        "",
+        f"Runs finished: {plan['runs_finished']} of {plan['runs_total']} "
+        f"({len(plan['seeds'])} seeds planned). Mean over seeds [95% bootstrap interval]; "
+        "returns are those of the episodes played while learning.",
+        "",
+        "| env (steps, threshold) | algorithm | seeds | return over run | final return (last 10%) "
+        "| steps to threshold | reached | wall-clock s | peak RSS MB |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for env, by_algo in summary["groups"].items():
+        e = plan["envs"][env]
+        for algo, g in by_algo.items():
+            frac = g["reached_fraction"]
+            reached = "—" if frac is None else f"{round(frac * g['n_runs'])}/{g['n_runs']}"
+            lines.append(
+                f"| {e['label']} ({e['steps_used']}, {e['threshold']:g}) | {ALGO_LABELS[algo]} "
+                f"| {g['n_runs']} | {_fmt(g['return_mean'], 1)} | {_fmt(g['final_return'], 1)} "
+                f"| {_fmt(g['steps_to_threshold'])} | {reached} | {_fmt(g['wall_s'])} "
+                f"| {_fmt(g['peak_rss_mb'])} |"
+            )
+    lines += [
+        "",
+        "## Window H of AdaptiveH (NS CartPole)",
+        "",
+        "| setting | seeds | segments | mean H per seed | median H per seed | p10 / p50 / p90 (pooled) "
+        "| segments ended by retreat |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for env, h in summary["H"].items():
+        if h.get("n"):
+            q = h["quantiles"]
+            lines.append(
+                f"| {plan['envs'][env]['label']} | {h['n']} | {h['segments']} | {_fmt(h['mean_H'], 2)} "
+                f"| {_fmt(h['median_H'], 1)} | {q['p10']:.0f} / {q['p50']:.0f} / {q['p90']:.0f} "
+                f"| {_fmt(h['retreat_fraction'], 2)} |"
+            )
+    lines += ["", "## Verdicts", "", format_verdicts(summary, markdown=True), ""]
+    if summary["missing_runs"]:
+        lines += [f"Missing runs ({len(summary['missing_runs'])}): " + ", ".join(summary["missing_runs"]), ""]
+    lines += [f"Code: {summary['code_commits']} (commit: runs)."]
+    if summary.get("dirty_runs"):
+        lines += [f"Runs from a modified or unknown tree: {', '.join(summary['dirty_runs'])}", ""]
+    if summary.get("stale_runs"):
+        lines += [
+            "Runs made under other hyperparameters than today's configs: " + ", ".join(summary["stale_runs"])
+        ]
+    path = out_dir / "summary.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:
+    """The verdicts with every comparison's difference and interval (plain text or a Markdown list)."""
+    plan = summary["plan"]
+    lines = [] if markdown else [f"runs finished: {plan['runs_finished']}/{plan['runs_total']}"]
+    bullet, sub = ("- ", "  - ") if markdown else ("", "  ")
     for claim, v in summary["verdicts"].items():
-        lines.append(f"{claim}: {v['verdict']}")
+        metric = f" ({v['metric']})" if v.get("metric") else ""
+        verdict = f"**{v['verdict']}**" if markdown else v["verdict"]
+        lines.append(f"{bullet}{claim}{metric}: {verdict}")
         for comp, d in v.get("comparisons", {}).items():
-            if d.get("diff") is not None:
-                lines.append(
-                    f"  {comp}: diff {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}] -> {d['outcome']}"
-                )
-            else:
-                lines.append(f"  {comp}: missing")
+            if d.get("diff") is None:
+                lines.append(f"{sub}{comp}: missing")
+                continue
+            lines.append(
+                f"{sub}{comp}: {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}], "
+                f"seeds {d['n_a']} vs {d['n_b']} -> {d['outcome']}"
+            )
     return "\n".join(lines)
 
 
