@@ -1,0 +1,48 @@
+"""``adaptiveh up``: the whole stack (robot-io, vision, learner, monitor) in one command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("up", help="start the whole stack on this machine (Ctrl-C stops it cleanly)")
+    p.add_argument("config", nargs="?", default="configs/sim.yaml", help="top-level YAML")
+    p.add_argument(
+        "--check", action="store_true", help="validate the config and look for drivers; start nothing"
+    )
+    p.add_argument("--steps", type=int, default=None, help="override learner.steps")
+    p.add_argument("--token", default="", help="operator token (default: random, printed)")
+    p.add_argument("--summary", default="", help="also write the summary JSON here")
+    p.add_argument("--log-level", default="INFO")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from deploy.config import ConfigError
+    from deploy.stack import Stack, check
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if args.check:
+        ok, lines = check(args.config)
+        for line in lines:
+            print(line)
+        return 0 if ok else 1
+    try:
+        stack = Stack(args.config, token=args.token or None, steps=args.steps)
+    except ConfigError as exc:
+        logging.error("%s", exc)
+        return 2
+    print(f"operator token: {stack.token}", flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: stack.request_stop())
+    signal.signal(signal.SIGINT, lambda *_: stack.request_stop())
+    summary = stack.run()
+    text = json.dumps(summary, indent=1)
+    print("summary:\n" + text)
+    if args.summary:
+        with open(args.summary, "w") as fh:
+            fh.write(text)
+    return 0 if summary["exit_codes"].get("learner") == 0 else 1

@@ -1,0 +1,1 @@
+"""The operator's view: a local web page fed live from Zenoh (``deploy.monitor.server``)."""

@@ -1,0 +1,241 @@
+"""The monitor process: collects the robot's Zenoh traffic and serves it to one local web page.
+
+stdlib ``http.server`` on 127.0.0.1; the page polls ``/api/state`` (JSON) and ``/api/image.jpg``
+(the vision node's annotated JPEG) a few times a second. ``POST /api/control`` turns a button or a jog
+key into a ``Control`` message; it needs the token printed at start (``X-Token`` header or ``token``
+field), and the robot and learner check the same token again.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import secrets
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+from deploy import messages as m
+from deploy.transport import Bus
+
+log = logging.getLogger(__name__)
+STATIC = Path(__file__).parent / "static"
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """The ``monitor:`` section."""
+
+    host: str = "127.0.0.1"
+    port: int = 8765
+    history: int = 600  # points kept per plot
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.port, int) or not 0 <= self.port < 65536:
+            raise ValueError(f"port: must be 0..65535, got {self.port!r}")
+        if self.history < 10:
+            raise ValueError(f"history: must be >= 10, got {self.history}")
+
+
+class MonitorState:
+    """Everything the page shows, updated from Zenoh callbacks, read under one lock."""
+
+    def __init__(self, bus: Bus, history: int = 600) -> None:
+        self.lock = threading.Lock()
+        self.segments: deque[dict[str, Any]] = deque(maxlen=history)
+        self.statistic: deque[tuple[int, float, str]] = deque(maxlen=history * 5)
+        self.threshold = 0.0
+        self.chunks: deque[dict[str, Any]] = deque(maxlen=50)
+        self.ee: deque[list[float]] = deque(maxlen=history)
+        self.target: deque[list[float]] = deque(maxlen=history)
+        self.returns: deque[dict[str, Any]] = deque(maxlen=history)
+        self.safety: deque[dict[str, Any]] = deque(maxlen=100)
+        self.robot: dict[str, Any] = {}
+        self.learner: dict[str, Any] = {}
+        self.current_chunk: dict[str, Any] = {}
+        self.image: bytes = b""
+        self.image_detected = False
+        self.counts = {"retreats": 0, "segments": 0, "dropped": 0, "safety": 0, "messages": 0}
+        self._n_state = 0
+        bus.subscribe(m.STATE, m.RobotState, self._state)
+        bus.subscribe(m.TARGET, m.Target, self._target)
+        bus.subscribe(m.EVENTS_RETREAT, m.RetreatEvent, self._retreat)
+        bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._chunk)
+        bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, self._status)
+        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self._safety)
+        bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self._telemetry)
+        bus.subscribe(m.CAMERA_ANNOTATED, m.AnnotatedImage, self._image)
+
+    def _state(self, s: m.RobotState) -> None:
+        with self.lock:
+            self.counts["messages"] += 1
+            self.robot = {
+                "mode": s.mode,
+                "ee": s.ee_pos,
+                "chunk_seq": s.chunk_seq,
+                "queue_len": s.queue_len,
+                "stamp": s.stamp,
+            }
+            self._n_state += 1
+            if self._n_state % 2 == 0:
+                self.ee.append([round(x, 4) for x in s.ee_pos])
+
+    def _target(self, t: m.Target) -> None:
+        if t.valid:
+            with self.lock:
+                self.target.append([round(x, 4) for x in t.position])
+
+    def _retreat(self, e: m.RetreatEvent) -> None:
+        with self.lock:
+            self.counts["segments"] += 1
+            self.counts["retreats"] += e.reason == "retreat"
+            self.threshold = e.threshold
+            self.segments.append({"segment": e.segment, "H": e.H, "reason": e.reason, "step": e.global_step})
+            for x in e.statistic:
+                self.statistic.append((e.segment, round(x, 5), e.reason))
+
+    def _chunk(self, c: m.ActionChunk) -> None:
+        with self.lock:
+            self.current_chunk = {
+                "chunk_seq": c.chunk_seq,
+                "n": len(c.actions) // 3,
+                "segment": c.segment,
+                "executed": 0,
+                "dropped": 0,
+            }
+
+    def _status(self, s: m.ChunkStatus) -> None:
+        with self.lock:
+            self.counts["dropped"] += s.dropped
+            if self.current_chunk.get("chunk_seq") == s.chunk_seq:
+                self.current_chunk.update(executed=s.executed, dropped=s.dropped)
+            if s.done:
+                self.chunks.append(
+                    {
+                        "chunk_seq": s.chunk_seq,
+                        "executed": s.executed,
+                        "dropped": s.dropped,
+                        "preempted_by": s.preempted_by,
+                    }
+                )
+
+    def _safety(self, e: m.SafetyEvent) -> None:
+        with self.lock:
+            self.counts["safety"] += 1
+            self.safety.append({"kind": e.kind, "detail": e.detail, "held": e.held, "stamp": e.stamp})
+
+    def _telemetry(self, t: m.LearnerTelemetry) -> None:
+        with self.lock:
+            self.learner = {"step": t.global_step, "episode": t.episode, "paused": t.paused, "algo": t.algo}
+            if t.episode and (not self.returns or self.returns[-1]["episode"] != t.episode):
+                self.returns.append({"episode": t.episode, "ret": t.episode_return, "success": t.success})
+
+    def _image(self, a: m.AnnotatedImage) -> None:
+        with self.lock:
+            self.image, self.image_detected = a.jpeg, a.detected
+
+    def snapshot(self) -> dict[str, Any]:
+        with self.lock:
+            return {
+                "robot": self.robot,
+                "learner": self.learner,
+                "segments": list(self.segments),
+                "statistic": list(self.statistic),
+                "threshold": self.threshold,
+                "chunk": self.current_chunk,
+                "chunks": list(self.chunks)[-20:],
+                "ee": list(self.ee),
+                "target": list(self.target),
+                "returns": list(self.returns),
+                "safety": list(self.safety)[-20:],
+                "counts": dict(self.counts),
+                "image": bool(self.image),
+                "detected": self.image_detected,
+            }
+
+
+class MonitorServer:
+    """HTTP server + Zenoh state; ``url`` once started. ``token`` guards control requests."""
+
+    def __init__(self, bus: Bus, config: MonitorConfig, token: str | None = None) -> None:
+        self.bus = bus
+        self.config = config
+        self.token = token or secrets.token_urlsafe(12)
+        self.state = MonitorState(bus, config.history)
+        self._pub_control = bus.publisher(m.CONTROL)
+        self._seq = 0
+        self.controls: list[str] = []
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, fmt: str, *args: Any) -> None:
+                log.debug(fmt, *args)
+
+            def _send(self, code: int, body: bytes, ctype: str) -> None:
+                self.send_response(code)
+                self.send_header("Content-Type", ctype)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Cache-Control", "no-store")
+                self.end_headers()
+                self.wfile.write(body)
+
+            def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+                path = self.path.split("?")[0]
+                if path in ("/", "/index.html"):
+                    self._send(200, (STATIC / "index.html").read_bytes(), "text/html; charset=utf-8")
+                elif path == "/api/state":
+                    self._send(200, json.dumps(server.state.snapshot()).encode(), "application/json")
+                elif path == "/api/image.jpg":
+                    with server.state.lock:
+                        img = server.state.image
+                    self._send(200 if img else 204, img, "image/jpeg")
+                else:
+                    self._send(404, b"not found", "text/plain")
+
+            def do_POST(self) -> None:  # noqa: N802
+                if self.path != "/api/control":
+                    self._send(404, b"not found", "text/plain")
+                    return
+                try:
+                    body = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))) or b"{}")
+                    token = self.headers.get("X-Token") or body.get("token", "")
+                    code, reply = server.control(str(body.get("command", "")), body.get("jog"), token)
+                except (ValueError, TypeError) as exc:
+                    code, reply = 400, {"ok": False, "error": str(exc)}
+                self._send(code, json.dumps(reply).encode(), "application/json")
+
+        self.httpd = ThreadingHTTPServer((config.host, config.port), Handler)
+        self.httpd.daemon_threads = True
+        self._thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        host, port = self.httpd.server_address[:2]
+        return f"http://{host}:{port}/"
+
+    def control(self, command: str, jog: Any, token: str) -> tuple[int, dict[str, Any]]:
+        """Validate and publish one operator request; returns (HTTP code, reply)."""
+        if not secrets.compare_digest(str(token), self.token):
+            return 403, {"ok": False, "error": "wrong or missing token"}
+        if command not in m.Control.COMMANDS:
+            return 400, {"ok": False, "error": f"unknown command {command!r}"}
+        vec = [0.0, 0.0, 0.0] if jog is None else [float(x) for x in jog]
+        if len(vec) != 3:
+            raise ValueError("jog must have 3 values")
+        self._seq += 1
+        self._pub_control(m.Control(seq=self._seq, command=command, jog=vec, token=self.token))
+        self.controls.append(command)
+        return 200, {"ok": True, "command": command, "at": time.time()}
+
+    def start(self) -> MonitorServer:
+        self._thread = threading.Thread(target=self.httpd.serve_forever, name="monitor-http", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()

@@ -1,0 +1,256 @@
+"""``adaptiveh up``: the whole stack on one machine, each part its own process, one Zenoh bus.
+
+The supervisor opens the first Zenoh session (it takes the loopback hub), records every message of
+the robot to MCAP, starts robot-io, vision, monitor and learner as ``python -m deploy.cli <part>``
+subprocesses (logs under ``<run>/logs``), prints progress, and ends when the learner finishes its
+steps, on Ctrl-C or on SIGTERM, stopping the parts in reverse order. The summary combines the
+learner's ``result.json`` with what the supervisor saw on the bus (retreats, safety events).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+import logging
+import os
+import secrets
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from deploy import messages as m
+from deploy.config import ConfigError, build, load_yaml
+from deploy.recording import Recorder
+from deploy.transport import Bus, ZenohConfig, open_session
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """The ``recording:`` section: where MCAP files go and which topics are left out (raw frames)."""
+
+    enabled: bool = True
+    dir: str = "runs/stack/recordings"
+    exclude: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "exclude", tuple(self.exclude))
+
+
+def check(config: str | Path) -> tuple[bool, list[str]]:
+    """Validate every section and look for the drivers the config needs; moves nothing."""
+    lines, ok = [], True
+    try:
+        data = load_yaml(config)
+        from deploy.learner_node import load_settings as learner_settings
+        from deploy.robot_io_node import load_settings as robot_settings
+
+        robot = robot_settings(config)
+        learner_settings(config)
+        lines.append(f"config {config}: robot, zenoh and learner sections valid")
+    except ConfigError as exc:
+        return False, [f"config error: {exc}"]
+    needs: list[tuple[str, str]] = []
+    if robot.robot.backend == "franka":
+        needs.append(("pylibfranka", "robot backend franka: pip install adaptiveh[franka] (pylibfranka)"))
+    vision = data.get("vision") or {}
+    if vision:
+        try:
+            from deploy.vision_node import load_vision_config
+
+            vcfg = load_vision_config(vision)
+            lines.append(f"vision section valid (camera {vcfg.camera})")
+            if vcfg.camera == "realsense":
+                needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
+        except ConfigError as exc:
+            ok = False
+            lines.append(f"config error: {exc}")
+    for module, why in needs:
+        if importlib.util.find_spec(module) is None:
+            ok = False
+            lines.append(f"MISSING driver {module}: needed by {why}")
+        else:
+            lines.append(f"driver {module}: installed")
+    lines.append("nothing was started and nothing moved" + ("" if ok else "; fix the MISSING items first"))
+    return ok, lines
+
+
+class Stack:
+    """Start, watch and stop the parts; ``run()`` returns the summary dict."""
+
+    def __init__(
+        self,
+        config: str | Path,
+        run_dir: str | Path | None = None,
+        token: str | None = None,
+        steps: int | None = None,
+        progress: bool = True,
+        python: str = sys.executable,
+    ) -> None:
+        self.config = str(config)
+        data = load_yaml(config)
+        self.data = data
+        self.name = data.get("name", "panda")
+        self.token = token or secrets.token_urlsafe(12)
+        self.steps = steps
+        self.progress = progress
+        self.python = python
+        self.recording = build(RecordingConfig, data.get("recording"), f"{config}: recording")
+        lc = data.get("learner") or {}
+        self.learner_dir = Path(lc.get("checkpoint_dir", "runs/stack/learner"))
+        self.run_dir = Path(run_dir) if run_dir else self.learner_dir.parent
+        self.procs: dict[str, subprocess.Popen] = {}
+        self._stop = threading.Event()
+        self.retreats: list[m.RetreatEvent] = []
+        self.safety: list[m.SafetyEvent] = []
+        self.telemetry: list[m.LearnerTelemetry] = []
+        self.monitor_url = ""
+        self.recording_path: Path | None = None
+
+    def _cmd(self, part: str, *extra: str) -> list[str]:
+        return [self.python, "-m", "deploy.cli", part, "--config", self.config, *extra]
+
+    def _spawn(self, part: str, cmd: list[str]) -> None:
+        logs = self.run_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        fh = open(logs / f"{part}.log", "w")
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.procs[part] = subprocess.Popen(
+            cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True
+        )
+        log.info("started %s (pid %d)", part, self.procs[part].pid)
+
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def _wait_monitor_url(self, timeout: float = 30.0) -> None:
+        path = self.run_dir / "logs" / "monitor.log"
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not self.monitor_url:
+            for line in path.read_text().splitlines() if path.exists() else []:
+                if line.startswith("monitor: "):
+                    self.monitor_url = line.split(" ", 1)[1]
+            time.sleep(0.2)
+
+    def run(self) -> dict[str, Any]:
+        zc = build(ZenohConfig, self.data.get("zenoh"), "zenoh")
+        if not (zc.connect or zc.listen):
+            # Peers do not forward for each other: the supervisor is the loopback router that the parts
+            # find on the hub, so every part reaches every other.
+            # Parts in peer mode that only connect are not forwarded to each other (tried): they are clients.
+            zc = dataclasses.replace(zc, mode="router", listen=(zc.hub,))
+            derived = {**self.data, "zenoh": {"mode": "client", "connect": [zc.hub], "listen": []}}
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            self.config = str(self.run_dir / "stack.yaml")
+            Path(self.config).write_text(yaml.safe_dump(derived, sort_keys=False))
+        bus = Bus(open_session(zc), self.name)
+        recorder = None
+        if self.recording.enabled:
+            self.recording_path = (
+                Path(self.recording.dir) / f"{self.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+            )
+            recorder = Recorder(bus.session, self.name, self.recording_path, self.recording.exclude)
+        bus.subscribe(m.EVENTS_RETREAT, m.RetreatEvent, self.retreats.append)
+        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self.safety.append)
+        bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self.telemetry.append)
+        t0 = time.monotonic()
+        try:
+            self._spawn("robot_io", self._cmd("robot-io", "--token", self.token, "--log-level", "WARNING"))
+            if self.data.get("vision"):
+                self._spawn("vision", self._cmd("vision", "--log-level", "WARNING"))
+            if self.data.get("monitor") is not None:
+                self._spawn("monitor", self._cmd("monitor", "--token", self.token, "--log-level", "WARNING"))
+                self._wait_monitor_url()
+                print(f"monitor: {self.monitor_url}", flush=True)
+            learn = self._cmd("learn", "--token", self.token, "--log-level", "WARNING")
+            if self.steps is not None:
+                learn += ["--steps", str(self.steps)]
+            self._spawn("learner", learn)
+            last = 0.0
+            while not self._stop.is_set():
+                if self.procs["learner"].poll() is not None:
+                    break
+                dead = [p for p, proc in self.procs.items() if proc.poll() is not None]
+                if dead:
+                    log.error("part(s) %s exited early; see %s", dead, self.run_dir / "logs")
+                    break
+                if self.progress and time.monotonic() - last > 5.0:
+                    last = time.monotonic()
+                    print(self._progress_line(time.monotonic() - t0), flush=True)
+                self._stop.wait(0.2)
+        finally:
+            self.stop_parts()
+            if recorder is not None:
+                recorder.close()
+            bus.close()
+        return self.summary(time.monotonic() - t0)
+
+    def _progress_line(self, elapsed: float) -> str:
+        tel = self.telemetry[-1] if self.telemetry else None
+        retreats = sum(e.reason == "retreat" for e in self.retreats)
+        if tel is None:
+            return f"[{elapsed:5.0f} s] waiting for the first episode; segments {len(self.retreats)}"
+        return (
+            f"[{elapsed:5.0f} s] step {tel.global_step} episode {tel.episode} return {tel.episode_return:.2f}"
+            f" success {tel.success} | retreats {retreats} of {len(self.retreats)} segments"
+            f" | safety events {len(self.safety)}"
+        )
+
+    def stop_parts(self) -> None:
+        """SIGTERM learner first (it checkpoints), then the rest; SIGKILL whatever ignores it."""
+        for part in ("learner", "monitor", "vision", "robot_io"):
+            proc = self.procs.get(part)
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    log.warning("%s ignored SIGTERM; killing it", part)
+                    proc.kill()
+                    proc.wait()
+
+    def summary(self, wall: float) -> dict[str, Any]:
+        result_path = self.learner_dir / "result.json"
+        result = json.loads(result_path.read_text()) if result_path.exists() else {}
+        eps = result.get("episodes", [])
+        succ = [bool(e.get("success")) for e in eps]
+        q = max(1, len(succ) // 4)
+        quarters = [
+            float(np.mean(succ[i * q : (i + 1) * q])) if succ[i * q : (i + 1) * q] else None for i in range(4)
+        ]
+        H = [e.H for e in self.retreats]
+        return {
+            "wall_clock_s": wall,
+            "episodes": len(eps),
+            "global_step": result.get("global_step", 0),
+            "success_rate_by_quarter": quarters if len(succ) >= 4 else None,
+            "success_rate": float(np.mean(succ)) if succ else None,
+            "segments": len(self.retreats),
+            "reasons": dict(Counter(e.reason for e in self.retreats)),
+            "H": {
+                "mean": float(np.mean(H)),
+                "p10": float(np.percentile(H, 10)),
+                "median": float(np.median(H)),
+                "p90": float(np.percentile(H, 90)),
+            }
+            if H
+            else None,
+            "dropped_actions": result.get("dropped_actions"),
+            "retreat_preemptions": result.get("retreat_preemptions"),
+            "retreat_dropped": result.get("retreat_dropped"),
+            "safety_events": dict(Counter(e.kind for e in self.safety)),
+            "recording": str(self.recording_path) if self.recording_path else None,
+            "learner_result": str(result_path),
+            "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},
+        }
