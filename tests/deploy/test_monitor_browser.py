@@ -1,0 +1,101 @@
+"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run:
+retreat events arrive, E-STOP holds the arm, release lets learning resume. Saves a screenshot."""
+
+import json
+import random
+import re
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+import yaml
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+pytestmark = pytest.mark.skipif(
+    not Path(CHROMIUM).exists(),
+    reason="needs Debian's chromium at /usr/bin/chromium (apt-get install chromium)",
+)
+
+
+def _state(url: str) -> dict:
+    with urllib.request.urlopen(url + "api/state", timeout=5) as r:
+        return json.loads(r.read())
+
+
+def _wait(pred, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        out = pred()
+        if out:
+            return out
+        time.sleep(0.2)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_monitor_in_chromium(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg["name"] = f"mon{random.randint(0, 10**6)}"
+    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
+    cfg["vision"]["rate_hz"] = 5.0
+    cfg["learner"].update(steps=100000, checkpoint_dir=str(tmp_path / "l"))
+    cfg["monitor"]["port"] = 0
+    cfg["recording"]["dir"] = str(tmp_path / "rec")
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    up = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        url = None
+        for line in up.stdout:
+            m = re.match(r"monitor: (http://\S+/)\?token=(\S+)", line)
+            if m:
+                url, token = m.group(1), m.group(2)
+                break
+        assert url, "the stack printed no monitor URL"
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            page.goto(f"{url}?token={token}")
+            _wait(lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page")
+            page.click("#estop")
+            _wait(lambda: page.inner_text("#mode") == "estop", 10, "the page showing estop")
+            ee0 = _state(url)["robot"]["ee"]
+            step0 = _state(url)["robot"]["chunk_seq"]
+            time.sleep(2.0)
+            s = _state(url)
+            assert s["robot"]["mode"] == "estop"
+            assert max(abs(a - b) for a, b in zip(s["robot"]["ee"], ee0, strict=True)) < 0.005  # held
+            assert s["robot"]["chunk_seq"] == step0  # no chunk accepted while e-stopped
+            page.click("#release")
+            _wait(lambda: page.inner_text("#mode") == "running", 10, "release")
+            seg = int(page.inner_text("#segments"))
+            _wait(lambda: int(page.inner_text("#segments")) > seg, 30, "learning to resume")
+            shot = Path("results/monitor_screenshot.png")
+            shot.parent.mkdir(exist_ok=True)
+            page.screenshot(path=str(shot), full_page=True)
+            page.screenshot(path=str(tmp_path / "monitor.png"))
+            # A control without the token is refused.
+            page.fill("#token", "wrong")
+            page.click("#pause")
+            _wait(lambda: "refused" in page.inner_text("#reply"), 5, "a refusal")
+            browser.close()
+    finally:
+        up.terminate()
+        up.wait(timeout=60)

@@ -1,0 +1,41 @@
+"""Two ``adaptiveh router`` processes on different loopback ports; robot-io and the learner connect to
+different routers as clients and a short learning run completes through them."""
+
+import json
+import random
+import subprocess
+import sys
+import time
+
+import yaml
+
+
+def test_two_routers_carry_a_run(tmp_path):
+    p1, p2 = random.sample(range(20000, 60000), 2)
+    e1, e2 = f"tcp/127.0.0.1:{p1}", f"tcp/127.0.0.1:{p2}"
+    r1 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e1])
+    time.sleep(1.0)
+    r2 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e2, "--connect", e1])
+    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg["name"] = f"rt{random.randint(0, 10**6)}"
+    cfg.pop("vision")
+    cfg["learner"].update(steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"))
+    robot_cfg, learner_cfg = tmp_path / "robot.yaml", tmp_path / "learner.yaml"
+    robot_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e1]}}))
+    learner_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e2]}}))
+    robot = subprocess.Popen([sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(robot_cfg)])
+    try:
+        learn = subprocess.run(
+            [sys.executable, "-m", "deploy.cli", "learn", "--config", str(learner_cfg)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert learn.returncode == 0, learn.stderr[-2000:]
+        res = json.loads((tmp_path / "l" / "result.json").read_text())
+        assert res["global_step"] == 60 and len(res["episodes"]) == 1
+        assert res["chunk_preemptions"] > 0  # the robot's chunk reports came back through both routers
+    finally:
+        for p in (robot, r2, r1):
+            p.terminate()
+            p.wait(timeout=15)
