@@ -49,6 +49,9 @@ class AdaptiveH:
             raise ValueError("the RKHS learner needs a continuous (Box) action space")
         self.normalize = StateNormalizer.for_env(env)
         dim = len(self.normalize.centre)
+        n_bw = np.size(cfg.bandwidth)
+        if n_bw not in (1, dim):
+            raise ValueError(f"bandwidth: expected 1 or {dim} values (one per state dimension), got {n_bw}")
         self.kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
         low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
         self.policy = RKHSGaussianPolicy(
@@ -115,8 +118,9 @@ class AdaptiveH:
         record = self._learn_from(s, raw, float(reward), next_obs, terminated, episode_over)
         if episode_over:
             self._finish_episode(info)
-        else:
+        elif np.all(np.isfinite(next_obs)):
             self._obs = np.asarray(next_obs, float)
+        # else: keep acting from the last finite observation; a NaN state never reaches the policy
         return record
 
     def _learn_from(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 from learner.retreat import MODES
 
@@ -31,7 +31,7 @@ class AdaptiveHConfig:
     critic_ald: float = 0.05
     critic_forgetting: float = 0.999
     critic_p0: float = 10.0
-    retreat: str = "smoothed"  # smoothed | literal | off
+    retreat: str = "local"  # local | smoothed | literal | off
     retreat_smoothing: float = 0.05  # λ of the gradient-field average
     retreat_threshold: float | None = None  # None: derived from the paper (see learner/retreat.py)
     epsilon: float = 1.0  # the ε of Theorem 1, used by the literal threshold Z ε / 2
@@ -42,6 +42,13 @@ class AdaptiveHConfig:
     use_discount_factor: bool = True  # the paper's 1/(1-γ) in eq. 8
 
     def __post_init__(self) -> None:
+        for f in fields(self):  # YAML reads 1e-3 (no dot) as a string: coerce it, or name the key
+            value = getattr(self, f.name)
+            if isinstance(value, str) and ("float" in f.type or f.type == "int"):
+                try:
+                    setattr(self, f.name, int(value) if f.type == "int" else float(value))
+                except ValueError:
+                    raise ValueError(f"{f.name}: must be a number, got {value!r}") from None
         _check(0.0 < self.gamma < 1.0, "gamma", f"must be in (0, 1), got {self.gamma}")
         _check(self.alpha > 0, "alpha", f"must be > 0, got {self.alpha}")
         _check(self.sigma > 0, "sigma", f"must be > 0, got {self.sigma}")

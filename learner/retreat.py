@@ -7,18 +7,29 @@ the agent retreats: drops the rest of its queued actions and updates.
 
 The theorem speaks of the *expected* gradient ``D(s)ρ(s)``, not of one sample. Taken literally on
 per-sample gradients ``k(s0,si) g0ᵀgi`` (mode ``literal``) the test reads the sign of exploration
-noise: on a prototype it fired every 2-3 steps whatever the world did, and a cosine of short windowed
-means did no better (median H 6-7 at stationary, slow and fast gravity alike). Mode ``smoothed``
-(default) follows the theorem more closely:
-- the expected gradient field is estimated by ``G ← (1-λ) G + λ k(s_t,·) g_t/‖g_t‖``, an
-  exponentially weighted RKHS average of the per-sample gradient directions (``λ`` = ``smoothing``;
-  unit directions because TD errors are heavy-tailed), kept sparse under a budget like the
-  policy. Exploration noise averages out; a systematic change of the gradient (the world drifted,
-  the critic's errors turned) rotates ``G``;
-- ``G_0`` is ``G`` when the segment opened, ``G_i`` is ``G`` now. In (39) the bound is
-  ``⟨G_0, G_i⟩ ≥ Z ε / 2`` with ``ε ≤ ‖∇J‖²``, while ``⟨G_0, G_0⟩`` itself is ``Z ε`` at the tightest
-  ``ε`` (eq. 37 at ``s' = s0``). Dividing both by it removes ``Z`` and the gradient's scale: the
-  statistic is the projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H`` and the retreat fires below ``1/2``.
+noise: on a prototype it fired every 2-3 steps whatever the world did. Both other modes estimate the
+expected gradient field first:
+
+    G ← (1-λ) G + λ k(s_t,·) g_t/‖g_t‖
+
+an exponentially weighted RKHS average of the per-sample gradient directions (``λ`` = ``smoothing``;
+unit directions because TD errors are heavy-tailed), kept sparse under a budget like the policy.
+Exploration noise averages out; a systematic change of the gradient rotates ``G``.
+
+- ``local`` (default), the theorem's own inner product with ``G`` in place of samples: both
+  gradients of the current ``h`` (the policy is fixed within a segment), at the segment's first state
+  and at the newest, ``⟨k(s0,·)G(s0), k(si,·)G(si)⟩_H = k(s0,si) G(s0)ᵀG(si)``, against ``Z ε / 2``
+  with the tightest ``ε`` the statement allows at ``s0``, ``ε = ‖k(s0,·)G(s0)‖² = ‖G(s0)‖²``.
+  Dividing by it gives the scale-free statistic ``k(s0,si) G(s0)ᵀG(si) / ‖G(s0)‖²`` and the
+  threshold ``Z/2`` (capped at 1/2). It fires when the state leaves the kernel's reach of ``s0`` or
+  the estimated ascent directions at ``s0`` and ``si`` disagree. (Freezing ``G(s0)`` at the segment's
+  start instead was tried: H came out shorter under drift, but learning collapsed on 5 of 6 runs,
+  the mean saturating at a box edge.)
+- ``smoothed``: the whole field, ``G_0`` when the segment opened against ``G_i`` now. At ``s'=s0`` eq.
+  37 makes ``⟨G_0, G_0⟩`` equal ``Z ε``; dividing the bound ``⟨G_0, G_i⟩ ≥ Z ε / 2`` by it leaves the
+  projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H ≥ 1/2``. Measured, it acts as a timer: each step
+  shrinks the ratio by ``1-λ`` and local agreement adds little against the global norm, so
+  ``H ≈ ln 2 / λ`` whatever the world does.
 All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = Σ_ab k(s_a,s_b) g_aᵀg_b``.
 """
 
@@ -29,7 +40,7 @@ import numpy as np
 from learner.dictionary import RKHSFunction
 from learner.kernels import GaussianKernel
 
-MODES = ("smoothed", "literal", "off")
+MODES = ("local", "smoothed", "literal", "off")
 
 
 def rkhs_inner(
@@ -42,6 +53,8 @@ def rkhs_inner(
 def default_threshold(mode: str, kernel: GaussianKernel, epsilon: float) -> float:
     if mode == "literal":
         return kernel.normaliser_z * epsilon / 2.0
+    if mode == "local":
+        return min(kernel.normaliser_z / 2.0, 0.5)
     return 0.5
 
 
@@ -79,7 +92,14 @@ class RetreatCheck:
         self.grads.append(g)
         if self.mode == "off":
             return False
-        stat = self._literal() if self.mode == "literal" else self._smoothed(s, g)
+        if self.field.weights.shape[1] != len(g):  # the field learns its output size from the first g
+            self.field.weights = np.zeros((len(self.field), len(g)))
+        if self.mode == "literal":
+            stat = self._literal()
+        elif self.mode == "local":
+            stat = self._local(s, g)
+        else:
+            stat = self._smoothed(s, g)
         if stat is None:
             return False
         self.trace.append(stat)
@@ -90,21 +110,31 @@ class RetreatCheck:
             return None
         return self.kernel.pair(self.states[0], self.states[-1]) * float(self.grads[0] @ self.grads[-1])
 
-    def _smoothed(self, s: np.ndarray, g: np.ndarray) -> float | None:
+    def _update_field(self, g: np.ndarray, s: np.ndarray) -> None:
         field = self.field
-        if field.weights.shape[1] != len(g):
-            field.weights = np.zeros((len(field), len(g)))
-        if self._snapshot is None:
-            self._snapshot = (field.dictionary.centers.copy(), field.weights.copy(), field.norm2())
         field.scale(1.0 - self.smoothing)
         norm = float(np.linalg.norm(g))
         if norm > 0:  # directions only: heavy-tailed TD errors must not let one sample swing G
             field.add(s, self.smoothing * g / norm)
+
+    def _smoothed(self, s: np.ndarray, g: np.ndarray) -> float | None:
+        field = self.field
+        if self._snapshot is None:
+            self._snapshot = (field.dictionary.centers.copy(), field.weights.copy(), field.norm2())
+        self._update_field(g, s)
         centers0, weights0, norm0 = self._snapshot
         if norm0 <= 1e-300 or len(centers0) == 0:
             return None  # no gradient history yet: nothing to compare with
         cross = float(np.sum(self.kernel(centers0, field.dictionary.centers) * (weights0 @ field.weights.T)))
         return cross / norm0
+
+    def _local(self, s: np.ndarray, g: np.ndarray) -> float | None:
+        self._update_field(g, s)
+        d0, di = self.field(self.states[0]), self.field(s)
+        n0 = float(d0 @ d0)
+        if n0 <= 1e-300:
+            return None  # no gradient estimate at s0 yet
+        return self.kernel.pair(self.states[0], s) * float(d0 @ di) / n0
 
     def state_dict(self) -> dict:
         return {

@@ -163,3 +163,54 @@ def test_mode_off_never_retreats_and_records_everything():
     with pytest.raises(ValueError, match="retreat mode"):
         RetreatCheck(kernel, "sometimes", 0.5)
     assert "off" in MODES and "literal" in MODES
+
+
+def _field_at(kernel: GaussianKernel, field: _ExactField, s: np.ndarray) -> np.ndarray:
+    centers, weights = field.copy()
+    return kernel(s[None, :], centers)[0] @ weights
+
+
+def test_local_statistic_is_the_theorems_inner_product_of_the_smoothed_gradients():
+    """``k(s0,si) G(s0)ᵀG(si) / ‖G(s0)‖²`` with G the current field (exact here), threshold Z/2."""
+    rng = np.random.default_rng(5)
+    kernel = GaussianKernel(0.4, 2)
+    lam = 0.2
+    threshold = default_threshold("local", kernel, 1.0)
+    assert threshold == pytest.approx(min(kernel.normaliser_z / 2, 0.5))
+    check = RetreatCheck(kernel, "local", threshold, smoothing=lam, budget=10_000, ald_threshold=0.0)
+    exact = _ExactField(kernel, lam)
+    s0 = None
+    for t in range(60):
+        if t % 15 == 0:
+            check.reset()
+        s, g = rng.uniform(-1, 1, 2), rng.normal(size=2)
+        fired = check.push(s, g)
+        exact.push(s, g)
+        s0 = s if t % 15 == 0 else s0
+        d0, di = _field_at(kernel, exact, s0), _field_at(kernel, exact, s)
+        expected = kernel.pair(s0, s) * float(d0 @ di) / float(d0 @ d0)
+        assert check.trace[-1] == pytest.approx(expected, rel=1e-6, abs=1e-9)
+        assert fired == (expected < threshold)
+
+
+def test_local_check_holds_near_s0_for_a_steady_gradient_and_retreats_on_disagreement_or_leaving():
+    kernel = GaussianKernel(0.4, 2)
+    check = RetreatCheck(kernel, "local", 0.05, smoothing=0.1)
+    s0 = np.zeros(2)
+    near = [s0 + 0.05 * np.array([np.cos(t), np.sin(t)]) for t in range(40)]
+    for s in near:  # a steady ascent direction around s0
+        check.push(s, np.array([1.0]))
+    check.reset()
+    assert not any(check.push(s, np.array([1.0])) for s in near)
+    assert min(check.trace) > 0.9
+    # The segment starts at s0; nearby, at si, the gradients turn: G(si) and G(s0) come to disagree.
+    check.reset()
+    si = np.array([0.5, 0.0])
+    disagree = [check.push(s0 if t == 0 else si, np.array([1.0 if t == 0 else -1.0])) for t in range(40)]
+    assert any(disagree)
+    first = disagree.index(True)
+    assert check.trace[first] < 0.05 and float(check.field(si)[0]) < 0
+    # A steady gradient, but the state leaves the kernel's reach of s0.
+    check.reset()
+    far = [check.push(np.array([0.1 * t, 0.0]), np.array([1.0])) for t in range(40)]
+    assert any(far)
