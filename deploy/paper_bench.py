@@ -646,6 +646,12 @@ def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> 
 # -- figures ------------------------------------------------------------------------------------
 
 
+def _kilo_steps(ax: Any) -> None:
+    from matplotlib.ticker import FuncFormatter
+
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0"))
+
+
 def _plot_curves(ax: Any, plan: Plan, summary: dict[str, Any], env: str) -> None:
     g = summary["groups"][env]
     for algo in plan.algos:
@@ -659,6 +665,9 @@ def _plot_curves(ax: Any, plan: Plan, summary: dict[str, Any], env: str) -> None
         ax.fill_between(c["steps"], c["lo"], c["hi"], color=ALGO_COLORS[algo], alpha=0.2, linewidth=0)
     spec = ENVS[env]
     ax.axhline(spec.threshold, color="grey", linestyle=":", linewidth=1)
+    ax.set_xlim(0, summary["plan"]["envs"][env]["steps_used"])
+    if not any(g[algo]["n_runs"] for algo in plan.algos):
+        ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center", color="grey")
     drift = summary["drift"].get(env)
     if drift and drift["steps"]:
         twin = ax.twinx()
@@ -666,6 +675,7 @@ def _plot_curves(ax: Any, plan: Plan, summary: dict[str, Any], env: str) -> None
         twin.set_ylabel(f"{drift['key']} (hidden, dashed)", color="0.5", fontsize=8)
         twin.tick_params(labelsize=7, colors="0.5")
     ax.set_title(spec.label)
+    _kilo_steps(ax)
     ax.set_xlabel("environment steps")
     ax.set_ylabel(f"return (mean of last {RETURN_WINDOW} episodes)")
     ax.legend(fontsize=7)
@@ -677,6 +687,7 @@ def make_figures(plan: Plan, summary: dict[str, Any], out_dir: Path) -> list[Pat
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
 
     paths = []
     main = [e for e in MAIN_ENVS if e in plan.envs]
@@ -714,6 +725,7 @@ def make_figures(plan: Plan, summary: dict[str, Any], out_dir: Path) -> list[Pat
                 color=colors[env],
                 label=f"{label}: mean {hs['pooled_mean_H']:.1f}, median {hs['quantiles']['p50']:.0f}",
             )
+        _kilo_steps(ax_a)
         ax_a.set_title("(a) AdaptiveH window H over training")
         ax_a.set_xlabel("environment steps")
         ax_a.set_ylabel("mean H of the segments (20 bins)")
@@ -741,11 +753,13 @@ def make_figures(plan: Plan, summary: dict[str, Any], out_dir: Path) -> list[Pat
                     ys.append(s["mean"])
                     err[0].append(s["mean"] - s["lo"])
                     err[1].append(s["hi"] - s["mean"])
-            ax.bar(xs, ys, width, yerr=err, color=ALGO_COLORS[algo], label=ALGO_LABELS[algo], capsize=2)
+            if xs:
+                ax.bar(xs, ys, width, yerr=err, color=ALGO_COLORS[algo], capsize=2)
         ax.set_xticks([i + width * (len(plan.algos) - 1) / 2 for i in range(len(plan.envs))])
         ax.set_xticklabels([ENVS[e].label for e in plan.envs], fontsize=7)
         ax.set_title(title)
-        ax.legend(fontsize=7)
+        handles = [Patch(color=ALGO_COLORS[a], label=ALGO_LABELS[a]) for a in plan.algos]
+        ax.legend(handles=handles, fontsize=7)
     paths.append(_save(fig, out_dir / "summary_bars.png"))
     return paths
 
