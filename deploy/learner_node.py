@@ -29,6 +29,7 @@ from learner.protocol import Agent, RunLog
 from learner.registry import ALGOS, make_agent
 
 log = logging.getLogger(__name__)
+TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
 
 
 @dataclass(frozen=True)
@@ -189,6 +190,8 @@ class LearnerNode:
         if len(lg.episodes) > self._episodes_seen:
             self._episodes_seen = len(lg.episodes)
             self._telemetry()
+        elif lg.global_step % TELEMETRY_EVERY == 0:
+            self._telemetry()  # the operator sees the step count move between episodes
         if lg.global_step % self.cfg.checkpoint_every == 0:
             self.save()
 

@@ -46,6 +46,7 @@ class MonitorState:
 
     def __init__(self, bus: Bus, history: int = 600) -> None:
         self.lock = threading.Lock()
+        self.name = bus.robot
         self.segments: deque[dict[str, Any]] = deque(maxlen=history)
         self.statistic: deque[tuple[int, float, str]] = deque(maxlen=history * 5)
         self.threshold = 0.0
@@ -78,6 +79,7 @@ class MonitorState:
                 "ee": s.ee_pos,
                 "chunk_seq": s.chunk_seq,
                 "queue_len": s.queue_len,
+                "joint_speed": max((abs(v) for v in s.dq), default=0.0),  # rad/s, the hold check
                 "stamp": s.stamp,
             }
             self._n_state += 1
@@ -141,6 +143,7 @@ class MonitorState:
     def snapshot(self) -> dict[str, Any]:
         with self.lock:
             return {
+                "name": self.name,
                 "robot": self.robot,
                 "learner": self.learner,
                 "segments": list(self.segments),

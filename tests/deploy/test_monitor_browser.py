@@ -75,7 +75,7 @@ def test_monitor_in_chromium(tmp_path):
             page.goto(f"{url}?token={token}")
             _wait(lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page")
             page.click("#estop")
-            _wait(lambda: page.inner_text("#mode") == "estop", 10, "the page showing estop")
+            _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "the page showing estop")
             ee0 = _state(url)["robot"]["ee"]
             step0 = _state(url)["robot"]["chunk_seq"]
             time.sleep(2.0)
@@ -83,10 +83,13 @@ def test_monitor_in_chromium(tmp_path):
             assert s["robot"]["mode"] == "estop"
             assert max(abs(a - b) for a, b in zip(s["robot"]["ee"], ee0, strict=True)) < 0.005  # held
             assert s["robot"]["chunk_seq"] == step0  # no chunk accepted while e-stopped
+            assert s["robot"]["joint_speed"] < 0.02, s["robot"]  # rad/s: the arm is still
+            assert "rad/s" in page.inner_text("#jspeed")
             page.click("#release")
-            _wait(lambda: page.inner_text("#mode") == "running", 10, "release")
+            _wait(lambda: page.inner_text("#mode").lower() == "running", 10, "release")
             seg = int(page.inner_text("#segments"))
             _wait(lambda: int(page.inner_text("#segments")) > seg, 30, "learning to resume")
+            _wait(lambda: "ep " in page.inner_text("#learner"), 30, "learner telemetry on the page")
             shot = Path("results/monitor_screenshot.png")
             shot.parent.mkdir(exist_ok=True)
             page.screenshot(path=str(shot), full_page=True)
