@@ -25,8 +25,7 @@ import numpy as np
 
 from deploy import messages as m
 from deploy.transport import Bus
-
-SUCCESS_M = 0.05
+from sim.reach import SUCCESS_M, reach_observation, reach_observation_bounds
 
 
 class EnvStopped(RuntimeError):
@@ -58,6 +57,7 @@ def extrapolate(obs: np.ndarray, action: np.ndarray, dt: float) -> np.ndarray:
     nxt[0:3] = obs[0:3] + action
     nxt[3:6] = action / dt
     nxt[6:9] = obs[6:9] + obs[9:12] * dt
+    nxt[12:15] = nxt[6:9] - nxt[0:3]
     return nxt
 
 
@@ -71,10 +71,8 @@ class ZenohReachEnv(gym.Env):
         self.settings = settings
         self.planner = planner
         self.segment = 0
-        lo, hi = np.asarray(settings.workspace_lo), np.asarray(settings.workspace_hi)
-        vt = settings.target_speed_max * 1.25
-        low = np.concatenate([lo, -np.ones(3), lo, -np.full(3, vt)]).astype(np.float32)
-        high = np.concatenate([hi, np.ones(3), hi, np.full(3, vt)]).astype(np.float32)
+        lo, hi = settings.workspace_lo, settings.workspace_hi
+        low, high, self.obs_bounds = reach_observation_bounds(lo, hi, lo, hi, settings.target_speed_max)
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         s = settings.max_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
@@ -128,7 +126,7 @@ class ZenohReachEnv(gym.Env):
             state, target = self._state, self._target
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
-        obs = np.concatenate([ee, state.ee_vel, target.position, target.velocity]).astype(np.float32)
+        obs = reach_observation(ee, state.ee_vel, target.position, target.velocity)
         distance = float(np.linalg.norm(ee - np.asarray(target.position)))
         info = {
             "distance": distance,

@@ -26,7 +26,7 @@ def test_spaces_and_seeded_determinism():
         b1 = e.step(np.array([0.01, -0.02, 0.03]))[0]
         np.testing.assert_allclose(a, b, atol=1e-6)
         np.testing.assert_allclose(a1, b1, atol=1e-6)
-        assert a.dtype == np.float32 and e.observation_space.shape == (12,) and e.action_space.shape == (3,)
+        assert a.dtype == np.float32 and e.observation_space.shape == (15,) and e.action_space.shape == (3,)
     finally:
         e.close()
 
