@@ -1,7 +1,7 @@
 """``adaptiveh up``: the whole stack on one machine, each part its own process, one Zenoh bus.
 
-The supervisor opens the first Zenoh session (it takes the loopback hub), records every message of
-the robot to MCAP, starts robot-io, vision, monitor and learner as ``python -m deploy.cli <part>``
+The supervisor opens the first Zenoh session (it owns the loopback hub the parts join), records every
+message of the robot to MCAP, starts robot-io, vision, monitor and learner as ``python -m deploy.cli <part>``
 subprocesses (logs under ``<run>/logs``), prints progress, and ends when the learner finishes its
 steps, on Ctrl-C or on SIGTERM, stopping the parts in reverse order. The summary combines the
 learner's ``result.json`` with what the supervisor saw on the bus (retreats, safety events).
@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+import zenoh
 
 from deploy import messages as m
 from deploy.config import ConfigError, build, load_yaml
@@ -145,16 +145,18 @@ class Stack:
 
     def run(self) -> dict[str, Any]:
         zc = build(ZenohConfig, self.data.get("zenoh"), "zenoh")
-        if not (zc.connect or zc.listen):
-            # Peers do not forward for each other: the supervisor is the loopback router that the parts
-            # find on the hub, so every part reaches every other.
-            # Parts in peer mode that only connect are not forwarded to each other (tried): they are clients.
-            zc = dataclasses.replace(zc, mode="router", listen=(zc.hub,))
-            derived = {**self.data, "zenoh": {"mode": "client", "connect": [zc.hub], "listen": []}}
-            self.run_dir.mkdir(parents=True, exist_ok=True)
-            self.config = str(self.run_dir / "stack.yaml")
-            Path(self.config).write_text(yaml.safe_dump(derived, sort_keys=False))
-        bus = Bus(open_session(zc), self.name)
+        if not (zc.connect or zc.listen) and zc.mode == "peer":
+            # The supervisor owns the loopback hub; the parts join through it and gossip makes a full mesh
+            # of peers (deploy.transport). A hub already taken means another stack is running here.
+            zc = dataclasses.replace(zc, listen=(zc.hub,))
+        try:
+            session = open_session(zc)
+        except zenoh.ZError as exc:
+            raise RuntimeError(
+                f"cannot open the Zenoh bus ({exc}); if {zc.hub} is taken another stack runs here:"
+                " stop it or set zenoh.hub to a free port"
+            ) from None
+        bus = Bus(session, self.name)
         recorder = None
         if self.recording.enabled:
             self.recording_path = (

@@ -65,8 +65,22 @@ def _config(cfg: ZenohConfig, connect: list[str], listen: list[str]) -> zenoh.Co
     return zc
 
 
+def own_listener(hub: str) -> str:
+    """The hub's protocol and host with port 0: a joining peer's own listener (the OS picks the port)."""
+    proto, _, address = hub.partition("/")
+    host = address.rsplit(":", 1)[0]
+    return f"{proto}/{host}:0"
+
+
 def open_session(cfg: ZenohConfig) -> zenoh.Session:
-    """Open a session; with no endpoints configured, listen on the hub or, if taken, connect to it."""
+    """Open a session; with no endpoints configured, listen on the hub or, if taken, join through it.
+
+    Peers in Zenoh's default ``peer_to_peer`` routing never forward for each other, so a joiner that only
+    connected to the hub reached the hub's owner and nobody else (tried: the third process heard one of
+    two). A joiner therefore also listens on its own loopback port: the hub's gossip hands its locator to
+    the other peers, which connect to it directly (a full mesh), so any number of parts reach each other
+    and the mesh survives the hub's owner leaving.
+    """
     if cfg.connect or cfg.listen:
         return zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen)))
     if cfg.mode == "client":
@@ -74,8 +88,8 @@ def open_session(cfg: ZenohConfig) -> zenoh.Session:
     try:
         return zenoh.open(_config(cfg, [], [cfg.hub]))
     except zenoh.ZError:
-        log.info("zenoh hub %s already taken; connecting to it", cfg.hub)
-        return zenoh.open(_config(cfg, [cfg.hub], []))
+        log.info("zenoh hub %s already taken; joining through it", cfg.hub)
+        return zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)]))
 
 
 class Bus:

@@ -39,7 +39,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"operator token: {stack.token}", flush=True)
     signal.signal(signal.SIGTERM, lambda *_: stack.request_stop())
     signal.signal(signal.SIGINT, lambda *_: stack.request_stop())
-    summary = stack.run()
+    try:
+        summary = stack.run()
+    except RuntimeError as exc:
+        logging.error("%s", exc)
+        return 2
     text = json.dumps(summary, indent=1)
     print("summary:\n" + text)
     if args.summary:
