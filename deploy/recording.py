@@ -92,29 +92,54 @@ def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
     return out
 
 
+def recorded_robot(key: str) -> str:
+    """``<robot>`` of ``adaptiveh/<robot>/<topic>``."""
+    parts = key.split("/")
+    if len(parts) < 3 or parts[0] != NAMESPACE:
+        raise ValueError(f"not an {NAMESPACE}/<robot>/<topic> key: {key!r}")
+    return parts[1]
+
+
 def replay(
     session: zenoh.Session,
     path: str | Path,
     speed: float = 1.0,
     stop: threading.Event | None = None,
     on_message: Callable[[str], None] | None = None,
+    robot: str | None = None,
+    wait_subscribers_s: float = 0.0,
 ) -> int:
-    """Publish a recording onto ``session`` with its original timing divided by ``speed``."""
+    """Publish a recording onto ``session`` with its original timing divided by ``speed``.
+
+    ``robot`` renames the keys (``adaptiveh/<robot>/…``) so a replay never reaches a live robot of the
+    recorded name. ``wait_subscribers_s``: wait up to this long for a subscriber to match before the
+    first message, so a subscriber elsewhere on the bus does not miss the start while peers connect.
+    """
     records = read(path)
     if not records:
         return 0
+
+    def renamed(key: str) -> str:
+        if robot is None:
+            return key
+        return f"{NAMESPACE}/{robot}/" + key.split("/", 2)[2]
+
+    publishers = {key: session.declare_publisher(renamed(key)) for key in {r[0] for r in records}}
+    deadline = time.monotonic() + wait_subscribers_s
+    while time.monotonic() < deadline and not any(p.matching_status.matching for p in publishers.values()):
+        time.sleep(0.05)
     t0_rec, t0 = records[0][2], time.monotonic()
-    publishers: dict[str, zenoh.Publisher] = {}
-    for n, (key, _, stamp, data) in enumerate(records):
-        if stop is not None and stop.is_set():
-            return n
-        delay = (stamp - t0_rec) / 1e9 / speed - (time.monotonic() - t0)
-        if delay > 0:
-            time.sleep(delay)
-        pub = publishers.get(key)
-        if pub is None:
-            pub = publishers[key] = session.declare_publisher(key)
-        pub.put(data)
-        if on_message is not None:
-            on_message(key)
+    try:
+        for n, (key, _, stamp, data) in enumerate(records):
+            if stop is not None and stop.is_set():
+                return n
+            delay = (stamp - t0_rec) / 1e9 / speed - (time.monotonic() - t0)
+            if delay > 0:
+                time.sleep(delay)
+            publishers[key].put(data)
+            if on_message is not None:
+                on_message(renamed(key))
+    finally:
+        for pub in publishers.values():
+            pub.undeclare()
     return len(records)

@@ -1,9 +1,15 @@
-"""``adaptiveh replay FILE``: play a recorded run back onto Zenoh, into a monitor started here."""
+"""``adaptiveh replay FILE``: play a recorded run back onto Zenoh, into a monitor started here.
+
+The replay publishes under ``adaptiveh/<as>/…`` (default ``<recorded robot>-replay``) so recorded
+chunks and controls never reach a live robot of the recorded name; the monitor here follows that name.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import signal
+import threading
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -11,8 +17,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", help="a .mcap written by adaptiveh up")
     p.add_argument("--config", default="configs/sim.yaml", help="top-level YAML (zenoh, monitor)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed factor")
+    p.add_argument(
+        "--as",
+        dest="robot",
+        default=None,
+        help="robot name to publish under (default: <recorded name>-replay; the recorded name itself "
+        "would drive a live robot of that name)",
+    )
     p.add_argument("--no-monitor", action="store_true", help="only publish; a monitor runs elsewhere")
     p.add_argument("--port", type=int, default=None, help="override monitor.port")
+    p.add_argument(
+        "--wait-subscribers", type=float, default=5.0, help="with --no-monitor: wait this long for a listener"
+    )
+    p.add_argument(
+        "--keep", type=float, default=-1.0, help="seconds the monitor stays up after playback (-1: until ^C)"
+    )
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=run)
 
@@ -20,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from deploy.config import ConfigError, build, load_yaml
     from deploy.monitor.server import MonitorConfig, MonitorServer
-    from deploy.recording import replay
+    from deploy.recording import read, recorded_robot, replay
     from deploy.transport import Bus, ZenohConfig, open_session
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -34,19 +53,34 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         logging.error("%s", exc)
         return 2
+    try:
+        records = read(args.file)
+        robot = args.robot or (recorded_robot(records[0][0]) + "-replay" if records else "replay")
+    except Exception as exc:  # mcap raises its own types on a damaged file
+        logging.error("%s: not a readable recording: %s", args.file, exc)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
     session = open_session(zc)
     server = None
     if not args.no_monitor:
-        # The recorded robot name comes from the keys; the monitor listens for the config's name.
-        server = MonitorServer(Bus(session, data.get("name", "panda")), mcfg).start()
+        server = MonitorServer(Bus(session, robot), mcfg).start()
         print(f"monitor: {server.url}?token={server.token}", flush=True)
+    print(f"replaying {len(records)} messages as adaptiveh/{robot}/...", flush=True)
     try:
-        n = replay(session, args.file, args.speed)
-        print(f"replayed {n} messages from {args.file}")
-        if server is not None:
-            input("replay done; press Enter to stop the monitor ")
-    except (KeyboardInterrupt, EOFError):
-        pass
+        n = replay(
+            session,
+            args.file,
+            args.speed,
+            stop=stop,
+            robot=robot,
+            wait_subscribers_s=0.0 if server is not None else args.wait_subscribers,
+        )
+        print(f"replayed {n} messages from {args.file}", flush=True)
+        if server is not None and not stop.is_set():
+            print("replay done; the monitor stays up (Ctrl-C stops it)", flush=True)
+            stop.wait(args.keep if args.keep >= 0 else None)
     finally:
         if server is not None:
             server.stop()
