@@ -63,7 +63,8 @@ class EnvSpec:
 
 # Budgets: CartPole and Pendulum 20k steps (the zoo's Pendulum budget), Reach 10k (PyBullet + IK per
 # step). Thresholds: CartPole 195 (CartPole-v0's "solved" level), Pendulum -400 (upright most of the
-# episode; random play scores about -1200), Reach: see ENVS below.
+# episode; random play scores about -1200), Reach -5 over its 50-step episodes (configs/reach.yaml): a
+# mean distance of 10 cm; random play scores -8 to -28, a proportional controller -1 to -5.
 ENVS: dict[str, EnvSpec] = {
     e.key: e
     for e in (
@@ -87,7 +88,7 @@ ENVS: dict[str, EnvSpec] = {
             -400.0,
             "pendulum.yaml",
         ),
-        EnvSpec("reach_slow", "NSReach-v0", "slow", "NS Reach (slow)", 10_000, 2_000, -20.0, "reach.yaml"),
+        EnvSpec("reach_slow", "NSReach-v0", "slow", "NS Reach (slow)", 10_000, 2_000, -5.0, "reach.yaml"),
         EnvSpec(
             "cartpole_fast",
             "NSCartPoleContinuous-v0",
@@ -120,6 +121,7 @@ class RunSpec:
     seed: int
     steps: int
     config: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    env_kwargs: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
 
     @property
     def name(self) -> str:
@@ -136,17 +138,28 @@ class Plan:
     quick: bool
 
 
-def agent_config(env: EnvSpec, algo: str) -> dict[str, Any]:
-    """Hyperparameters per algorithm: RKHS learners from ``configs/<env>.yaml`` (the learner's tuned
-    values, the fixed-H baseline uses the same ones), TD3/DDPG the zoo's (``learner.baselines``)."""
-    if algo in ("td3", "ddpg"):
-        return {}
+def _config_file(env: EnvSpec) -> dict[str, Any]:
     path = CONFIG_DIR / env.config_file
     if not path.is_file():
         return {}
     import yaml
 
-    return dict((yaml.safe_load(path.read_text()) or {}).get("agent") or {})
+    return dict(yaml.safe_load(path.read_text()) or {})
+
+
+def agent_config(env: EnvSpec, algo: str) -> dict[str, Any]:
+    """Hyperparameters per algorithm: RKHS learners from ``configs/<env>.yaml`` (the learner's tuned
+    values, the fixed-H baseline uses the same ones), TD3/DDPG the zoo's (``learner.baselines``)."""
+    if algo in ("td3", "ddpg"):
+        return {}
+    return dict(_config_file(env).get("agent") or {})
+
+
+def env_kwargs(env: EnvSpec, seed: int) -> dict[str, Any]:
+    """The env's constructor arguments: ``configs/<env>.yaml``'s ``env_kwargs`` (e.g. Reach's episode
+    length), with this setting's preset and the run's seed; the same for every algorithm."""
+    preset_key = "motion" if env.env_id == "NSReach-v0" else "preset"
+    return {**(_config_file(env).get("env_kwargs") or {}), preset_key: env.preset, "seed": seed}
 
 
 def build_plan(
@@ -177,7 +190,7 @@ def build_plan(
         for key in env_keys:
             for algo in algo_keys:
                 cfg = {**agent_config(ENVS[key], algo), **(overrides or {}).get(algo, {})}
-                runs.append(RunSpec(key, algo, seed, budget[key], cfg))
+                runs.append(RunSpec(key, algo, seed, budget[key], cfg, env_kwargs(ENVS[key], seed)))
     # Cheap runs first (the RKHS learners on CartPole/Pendulum: ~1 min each, 10-20x faster than TD3/DDPG),
     # then everything else seed-major (Reach costs PyBullet + IK per step for every algorithm): a partial
     # experiment then already holds every seed for the H claim and complete seeds of the rest. The order
@@ -193,13 +206,12 @@ def _cheap(run: RunSpec) -> bool:
 # -- one run (in its own process) ---------------------------------------------------------------
 
 
-def make_env(env: EnvSpec, seed: int) -> Any:
-    """The env at ``seed``, with only its first ``reset`` seeded (see ``_SeedOnce``)."""
+def make_env(env: EnvSpec, kwargs: dict[str, Any]) -> Any:
+    """The env built from ``kwargs``, with only its first ``reset`` seeded (see ``_SeedOnce``)."""
     import gymnasium as gym
 
     import sim  # noqa: F401  (registers the NS environments)
 
-    kwargs = {"motion" if env.env_id == "NSReach-v0" else "preset": env.preset, "seed": seed}
     return _seed_once(gym.make(env.env_id, **kwargs))
 
 
@@ -306,7 +318,7 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
     from learner.registry import make_agent
 
     env_spec = ENVS[spec.env]
-    env = make_env(env_spec, spec.seed)
+    env = make_env(env_spec, spec.env_kwargs)
     agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
     t0 = time.perf_counter()
     log = agent.learn(spec.steps)
@@ -325,6 +337,7 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
         "steps": spec.steps,
         "global_step": int(log.global_step),
         "config": spec.config,
+        "env_kwargs": spec.env_kwargs,
         "threshold": env_spec.threshold,
         "wall_s": wall,
         "steps_per_s": log.global_step / wall if wall > 0 else None,
@@ -556,7 +569,12 @@ def summarize(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
     missing = [r.name for r in plan.runs if r.name not in runs]
     # A run finished under other hyperparameters than the plan's current ones (configs/*.yaml edited
     # since): kept, as finished runs are never recomputed, but named so that nobody mistakes it.
-    stale = [r.name for r in plan.runs if r.name in runs and runs[r.name].get("config") != r.config]
+    stale = [
+        r.name
+        for r in plan.runs
+        if r.name in runs
+        and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
+    ]
     return {
         "plan": {
             "quick": plan.quick,
