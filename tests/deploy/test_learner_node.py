@@ -1,0 +1,134 @@
+"""Learner checkpoint and resume over Zenoh: robot-io and the learner run as processes; the learner is
+killed (SIGKILL: no goodbye, no final checkpoint), the robot holds on the lost liveliness token, and a new
+learner loads the last periodic checkpoint and keeps learning from its step, not from 0."""
+
+from __future__ import annotations
+
+import json
+import random
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import yaml
+
+from deploy import messages as m
+from deploy.transport import Bus, ZenohConfig, open_session
+
+EVERY = 50  # checkpoint_every = one episode, so checkpoints fall on episode boundaries
+
+
+class Watch:
+    """The test's own peer on the bus: robot states, safety events, learner telemetry."""
+
+    def __init__(self, hub: str, robot: str) -> None:
+        self.bus = Bus(open_session(ZenohConfig(hub=hub)), robot)
+        self.lock = threading.Lock()
+        self.states: list[tuple[float, m.RobotState]] = []
+        self.safety: list[m.SafetyEvent] = []
+        self.step = 0
+        self.bus.subscribe(m.STATE, m.RobotState, self._state)
+        self.bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self._safety)
+        self.bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self._tel)
+
+    def _state(self, s: m.RobotState) -> None:
+        with self.lock:
+            self.states.append((time.monotonic(), s))
+
+    def _safety(self, e: m.SafetyEvent) -> None:
+        with self.lock:
+            self.safety.append(e)
+
+    def _tel(self, t: m.LearnerTelemetry) -> None:
+        with self.lock:
+            self.step = max(self.step, t.global_step)
+
+    def wait(self, pred, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                if pred():
+                    return
+            time.sleep(0.05)
+        raise AssertionError(f"timed out waiting for {what}")
+
+
+def _learn(cfg: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "learn", "--config", str(cfg), "--log-level", "WARNING", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path) -> None:
+    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg["name"] = f"ck{random.randint(0, 10**6)}"
+    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
+    cfg.pop("vision")
+    ckdir = tmp_path / "l"
+    cfg["learner"].update(
+        steps=100000, target_topic="sim/target_truth", checkpoint_dir=str(ckdir), checkpoint_every=EVERY
+    )
+    assert EVERY % cfg["learner"]["max_episode_steps"] == 0
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"]
+    )
+    time.sleep(1.0)  # robot-io owns the hub; the test and the learners join it
+    watch = Watch(cfg["zenoh"]["hub"], cfg["name"])
+    first = _learn(path)
+    second = None
+    try:
+        watch.wait(lambda: watch.step >= 2 * EVERY + 10, 120, "two checkpoints' worth of steps")
+        seen = watch.step
+        first.send_signal(signal.SIGKILL)
+        first.wait(timeout=10)
+        watch.wait(
+            lambda: any(e.kind == "liveliness" and e.held for e in watch.safety), 10, "a liveliness hold"
+        )
+        t_lost = time.monotonic()
+        time.sleep(1.5)
+        with watch.lock:
+            late = [s for t, s in watch.states if t > t_lost + 0.5]
+        assert late and all(s.mode == "held" for s in late), {s.mode for s in late}
+        assert max(abs(v) for s in late for v in s.dq) < 0.02  # rad/s: the arm stands still
+        ee = [s.ee_pos for s in late]
+        assert max(abs(a - b) for p in ee for a, b in zip(p, ee[0], strict=True)) < 0.002
+
+        total = seen + 60 + (seen % 2 == 0)  # odd: the final save lands mid-episode
+        second = _learn(path, "--steps", str(total))
+        out, err = second.communicate(timeout=120)
+        assert second.returncode == 0, err[-2000:]
+        res = json.loads((ckdir / "result.json").read_text())
+        resumed = res["resumed_from"]
+        # The last periodic checkpoint before the kill: at least the last multiple of EVERY we saw.
+        assert resumed % EVERY == 0 and resumed >= (seen // EVERY) * EVERY >= 2 * EVERY
+        assert res["global_step"] == total and res["steps_this_session"] == total - resumed
+        assert len(res["episodes"]) >= resumed // cfg["learner"]["max_episode_steps"] + 1  # old ones kept
+        assert any(s["global_step"] > resumed for s in res["segments"])  # it kept learning
+        with watch.lock:
+            assert any(s.mode == "running" for t, s in watch.states if t > t_lost + 2.0)  # released
+            assert any(e.kind == "release" and "liveliness" in e.detail for e in watch.safety)  # it is back
+        # A clean stop saves mid-episode (total is not a multiple of the episode length here); resuming
+        # from it abandons that stale episode and carries on from exactly that step.
+        third = _learn(path, "--steps", str(total + 60))
+        _, err = third.communicate(timeout=120)
+        assert third.returncode == 0, err[-2000:]
+        res3 = json.loads((ckdir / "result.json").read_text())
+        assert res3["resumed_from"] == total and res3["global_step"] == total + 60
+        # The interrupted episode is dropped, not stitched onto a fresh reset of the robot.
+        assert all(e["length"] <= cfg["learner"]["max_episode_steps"] for e in res3["episodes"])
+    finally:
+        for p in (first, second):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+        watch.bus.close()
+        robot.terminate()
+        robot.wait(timeout=20)
