@@ -1,0 +1,298 @@
+"""Stack benchmark: what going through the deployed stack costs against NS Reach in-process.
+
+Starts ``adaptiveh robot-io`` (PyBullet mock, owns the loopback hub) and ``adaptiveh learn`` as separate
+processes and listens from this one: the control-loop rate achieved (robot state stamps while running),
+the state-to-command latency across processes (robot state stamp -> the learner's next chunk stamp; one
+machine, one clock), and the learner's training curve. Then the same algo, agent config, seed, step
+count, episode length and target motion in-process on ``NSReach-v0``. The learner section is read from
+``configs/sim.yaml`` as it is when this runs. The target is the simulator's ground truth on both sides
+(``sim/target_truth``) so the comparison isolates the transport and process split, not vision.
+Writes ``results/stack_bench.json`` and ``results/stack_bench.png``.
+Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from deploy import messages as m
+from deploy.transport import Bus, ZenohConfig, open_session
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Listener:
+    """Robot states and learner chunks as this process receives them."""
+
+    def __init__(self, hub: str, robot: str) -> None:
+        self.bus = Bus(open_session(ZenohConfig(hub=hub)), robot)
+        self.lock = threading.Lock()
+        self.states: list[tuple[float, int, str]] = []  # (stamp, chunk_seq, mode)
+        self.chunks: list[tuple[float, int]] = []  # (stamp, chunk_seq)
+        self.bus.subscribe(m.STATE, m.RobotState, self._state)
+        self.bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._chunk)
+
+    def _state(self, s: m.RobotState) -> None:
+        with self.lock:
+            self.states.append((s.stamp, s.chunk_seq, s.mode))
+
+    def _chunk(self, c: m.ActionChunk) -> None:
+        with self.lock:
+            self.chunks.append((c.stamp, c.chunk_seq))
+
+
+def loop_rate(states: list[tuple[float, int, str]], t0: float, t1: float, hz: float) -> dict[str, float]:
+    """Rate and period percentiles of the robot's state stream (one state per control tick) while the
+    learner ran; the loop catches up after a late tick, so the late fraction is reported too."""
+    st = np.array(sorted(s[0] for s in states if t0 <= s[0] <= t1))
+    if len(st) < 3:
+        return {}
+    dt = np.diff(st) * 1e3
+    return {
+        "achieved_hz": float((len(st) - 1) / (st[-1] - st[0])),
+        "period_ms_p50": float(np.percentile(dt, 50)),
+        "period_ms_p99": float(np.percentile(dt, 99)),
+        "late_ticks_pct": float(100 * np.mean(dt > 1.5e3 / hz)),
+        "states": len(st),
+    }
+
+
+def latency(states: list[tuple[float, int, str]], chunks: list[tuple[float, int]]) -> dict[str, Any]:
+    """State-to-command: for chunk k+1, the first robot state (after chunk k was sent) that reports chunk
+    k executing is what the learner waited for; latency = chunk k+1's stamp - that state's stamp. Pairs
+    over 1 s are episode resets (a reset query sits between them) and are counted apart."""
+    st = sorted(states)
+    stamps = np.array([s[0] for s in st])
+    out, resets = [], 0
+    for (t_prev, seq_prev), (t_next, seq_next) in zip(chunks, chunks[1:], strict=False):
+        if seq_next != seq_prev + 1:
+            continue
+        i = int(np.searchsorted(stamps, t_prev, side="right"))
+        while i < len(st) and st[i][1] < seq_prev:
+            i += 1
+        if i >= len(st) or st[i][0] > t_next:
+            continue
+        lat = t_next - st[i][0]
+        if lat > 1.0:
+            resets += 1
+        else:
+            out.append(lat * 1e3)
+    a = np.array(out)
+    if not len(a):
+        return {"pairs": 0}
+    return {
+        "p50_ms": float(np.percentile(a, 50)),
+        "p99_ms": float(np.percentile(a, 99)),
+        "mean_ms": float(a.mean()),
+        "max_ms": float(a.max()),
+        "pairs": len(a),
+        "reset_pairs_excluded": resets,
+    }
+
+
+def curve(episodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [
+        {
+            "step": e["global_step"],
+            "return": e["ret"],
+            "final_distance": (e.get("info") or {}).get("distance"),
+            "success": e.get("success"),
+        }
+        for e in episodes
+    ]
+
+
+def quarters(eps: list[dict[str, Any]], key: str) -> list[float | None]:
+    q = max(1, len(eps) // 4)
+    vals = [[e[key] for e in eps[i * q : (i + 1) * q] if e[key] is not None] for i in range(4)]
+    return [float(np.mean(v)) if v else None for v in vals]
+
+
+def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
+    cfg = json.loads(json.dumps(cfg))
+    cfg["name"] = f"bench{random.randint(0, 10**6)}"
+    cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": f"tcp/127.0.0.1:{random.randint(20000, 60000)}"}
+    cfg.pop("vision", None)
+    cfg["learner"].update(
+        steps=steps, target_topic="sim/target_truth", checkpoint_dir=str(tmp / "l"), checkpoint_every=10**9
+    )
+    path = tmp / "stack.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    cli = [sys.executable, "-m", "deploy.cli"]
+    robot = subprocess.Popen([*cli, "robot-io", "--config", str(path), "--log-level", "WARNING"])
+    try:
+        time.sleep(1.0)
+        listener = Listener(cfg["zenoh"]["hub"], cfg["name"])
+        t0 = time.time()
+        learn = subprocess.run(
+            [*cli, "learn", "--config", str(path), "--log-level", "WARNING"],
+            capture_output=True,
+            text=True,
+            timeout=steps / cfg["robot"]["control_rate_hz"] * 4 + 120,
+        )
+        t1 = time.time()
+        if learn.returncode != 0:
+            raise RuntimeError(f"learner failed: {learn.stderr[-2000:]}")
+        with listener.lock:
+            states, chunks = list(listener.states), list(listener.chunks)
+        listener.bus.close()
+    finally:
+        robot.terminate()
+        robot.wait(timeout=30)
+    res = json.loads((tmp / "l" / "result.json").read_text())
+    return {
+        "wall_clock_s": t1 - t0,
+        "learner_wall_clock_s": res["wall_clock_s"],
+        "control_loop": {
+            "target_hz": cfg["robot"]["control_rate_hz"],
+            **loop_rate(states, t0, t1, cfg["robot"]["control_rate_hz"]),
+        },
+        "state_to_command_latency": latency(states, chunks),
+        "chunk_preemptions": res["chunk_preemptions"],
+        "dropped_actions": res["dropped_actions"],
+        "retreat_preemptions": res["retreat_preemptions"],
+        "segments": len(res["segments"]),
+        "retreats": sum(s["reason"] == "retreat" for s in res["segments"]),
+        "curve": curve(res["episodes"]),
+    }
+
+
+def run_in_process(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
+    from deploy.training import TrainSpec, train
+
+    lc = cfg["learner"]
+    spec = TrainSpec(
+        env="NSReach-v0",
+        env_kwargs={
+            "motion": cfg["robot"].get("target_motion", "slow"),
+            "max_episode_steps": lc["max_episode_steps"],
+            "seed": lc["seed"],
+            "control_rate_hz": cfg["robot"]["control_rate_hz"],
+        },
+        algo=lc["algo"],
+        steps=steps,
+        seed=lc["seed"],
+        agent=lc.get("agent", {}),
+        checkpoint_every=10**9,
+    )
+    res = train(spec, tmp / "inproc", resume=False, progress=False)
+    return {
+        "wall_clock_s": res["wall_clock_s"],
+        "segments": len(res["segments"]),
+        "retreats": sum(s["reason"] == "retreat" for s in res["segments"]),
+        "curve": curve(res["episodes"]),
+    }
+
+
+def plot(out: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for name, col in (("zenoh", "tab:blue"), ("in_process", "tab:orange")):
+        c = out[name]["curve"]
+        label = "over Zenoh (2 processes)" if name == "zenoh" else "in-process NSReach-v0"
+        for ax, key in ((axes[0], "return"), (axes[1], "final_distance")):
+            x = [e["step"] for e in c]
+            y = [e[key] for e in c]
+            ax.plot(x, y, "o-", color=col, ms=3, lw=1, alpha=0.8, label=label)
+    axes[0].set(xlabel="environment step", ylabel="episode return (-sum distance)", title="NS Reach return")
+    axes[1].set(xlabel="environment step", ylabel="final distance (m)", title="distance at episode end")
+    axes[1].axhline(0.05, color="g", ls="--", lw=1, label="success (5 cm)")
+    for ax in axes[:2]:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    lat = out["zenoh"]["state_to_command_latency"]
+    loop = out["zenoh"]["control_loop"]
+    axes[2].axis("off")
+    text = [
+        f"algo {out['config']['algo']}, seed {out['config']['seed']}, {out['config']['steps']} steps",
+        f"control loop: {loop.get('achieved_hz', float('nan')):.2f} Hz of {loop['target_hz']:.0f}",
+        f"  period p50 {loop.get('period_ms_p50', float('nan')):.1f} ms,"
+        f" p99 {loop.get('period_ms_p99', float('nan')):.1f} ms",
+        f"state->command latency: p50 {lat.get('p50_ms', float('nan')):.1f} ms,"
+        f" p99 {lat.get('p99_ms', float('nan')):.1f} ms ({lat.get('pairs', 0)} pairs)",
+        f"wall clock: Zenoh {out['zenoh']['wall_clock_s']:.0f} s,"
+        f" in-process {out['in_process']['wall_clock_s']:.0f} s",
+        f"retreats: Zenoh {out['zenoh']['retreats']}/{out['zenoh']['segments']} segments,"
+        f" in-process {out['in_process']['retreats']}/{out['in_process']['segments']}",
+    ]
+    axes[2].text(0.0, 0.95, "\n".join(text), va="top", family="monospace", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--config", default=str(ROOT / "configs/sim.yaml"))
+    ap.add_argument("--steps", type=int, default=1500)
+    ap.add_argument("--seed", type=int, default=None, help="override learner.seed")
+    ap.add_argument("--out", default=str(ROOT / "results/stack_bench.json"))
+    args = ap.parse_args()
+    os.chdir(ROOT)
+    cfg = yaml.safe_load(open(args.config))
+    if args.seed is not None:
+        cfg["learner"]["seed"] = args.seed
+    lc = cfg["learner"]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        zen = run_zenoh(cfg, args.steps, tmp)
+        inp = run_in_process(cfg, args.steps, tmp)
+    out: dict[str, Any] = {
+        "config": {
+            "algo": lc["algo"],
+            "seed": lc["seed"],
+            "steps": args.steps,
+            "agent": lc.get("agent", {}),
+            "max_episode_steps": lc["max_episode_steps"],
+            "chunk_len": lc["chunk_len"],
+            "target_motion": cfg["robot"].get("target_motion"),
+            "target": "sim/target_truth (ground truth both sides)",
+        },
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()},
+        "zenoh": zen,
+        "in_process": inp,
+    }
+    for name in ("zenoh", "in_process"):
+        c = out[name]["curve"]
+        out[name]["return_by_quarter"] = quarters(c, "return")
+        out[name]["final_distance_by_quarter"] = quarters(c, "final_distance")
+        out[name]["success_rate"] = float(np.mean([bool(e["success"]) for e in c])) if c else None
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1, default=float))
+    plot(out, path.with_suffix(".png"))
+    loop, lat = zen["control_loop"], zen["state_to_command_latency"]
+    print(f"control loop: {loop.get('achieved_hz', float('nan')):.2f} Hz (target {loop['target_hz']:.0f})")
+    print(f"state->command latency: p50 {lat.get('p50_ms')} ms, p99 {lat.get('p99_ms')} ms")
+    for name in ("zenoh", "in_process"):
+        o = out[name]
+        print(
+            f"{name:10s}: wall {o['wall_clock_s']:.0f} s, return by quarter "
+            f"{[round(x, 2) if x is not None else None for x in o['return_by_quarter']]}, final distance by "
+            f"quarter {[round(x, 3) if x is not None else None for x in o['final_distance_by_quarter']]}, "
+            f"success {o['success_rate']}, retreats {o['retreats']}/{o['segments']}"
+        )
+    print(f"wrote {path} and {path.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
