@@ -23,7 +23,6 @@ def test_stack_learns_reach_over_zenoh(tmp_path):
     cfg = yaml.safe_load(open("configs/sim.yaml"))
     cfg["name"] = f"e2e{random.randint(0, 10**6)}"
     cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-    cfg["robot"]["target_motion"] = "static"
     cfg["vision"]["rate_hz"] = 10.0
     cfg["learner"].update(steps=STEPS, checkpoint_dir=str(tmp_path / "learner"), checkpoint_every=600)
     cfg["monitor"]["port"] = 0
