@@ -12,6 +12,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 
 from deploy import recording
@@ -19,6 +20,7 @@ from deploy import recording
 STEPS = 2400  # 2 min at 20 Hz
 
 
+@pytest.mark.e2e
 def test_stack_learns_reach_over_zenoh(tmp_path):
     cfg = yaml.safe_load(open("configs/sim.yaml"))
     cfg["name"] = f"e2e{random.randint(0, 10**6)}"
