@@ -520,6 +520,7 @@ def _h_stats(group: list[dict[str, Any]]) -> dict[str, Any]:
         "median_H": bootstrap_mean(per_seed_median),
         "retreat_fraction": bootstrap_mean(retreat_frac),
         "per_seed_mean_H": per_seed_mean,
+        "per_seed_median_H": per_seed_median,
         "quantiles": {q: float(np.percentile(pooled, p)) for q, p in (("p10", 10), ("p50", 50), ("p90", 90))},
         "pooled_mean_H": float(pooled.mean()),
         "histogram": {  # fraction of all segments (all seeds) with each H = 1 .. max
@@ -607,15 +608,24 @@ def _vals(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key:
     return [g["metrics"][key] for g in _group(plan, runs, env, algo)]
 
 
-def _overall(outcomes: list[str]) -> str:
-    known = [o for o in outcomes if o in ("better", "tie", "worse")]
+def _overall(comparisons: list[dict[str, Any]], higher_is_better: bool = True) -> str:
+    """Confirmed: every comparison significantly favours AdaptiveH; partly: some do; not: none do.
+
+    The note says how many point estimates lean the claimed way, so a non-significant trend is visible.
+    """
+    outcomes = [c["outcome"] for c in comparisons]
+    known = [c for c in comparisons if c["outcome"] in ("better", "tie", "worse")]
     if not known:
         return "no data"
-    wins = sum(o == "better" for o in known)
+    wins = sum(c["outcome"] == "better" for c in known)
     verdict = "confirmed" if wins == len(known) else "partly confirmed" if wins else "not confirmed"
+    leaning = sum((c["diff"] > 0) == higher_is_better and c["diff"] != 0 for c in known)
+    notes = [
+        f"{wins} of {len(known)} significant at 95%, {leaning} of {len(known)} point estimates lean that way"
+    ]
     if len(known) < len(outcomes):
-        verdict += f" (on {len(known)} of {len(outcomes)} comparisons; the rest lack runs)"
-    return verdict
+        notes.append(f"{len(outcomes) - len(known)} comparisons lack runs")
+    return f"{verdict} ({'; '.join(notes)})"
 
 
 def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> dict[str, Any]:
@@ -645,16 +655,18 @@ def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> 
         out[claim] = {
             "metric": f"{key}, AdaptiveH minus rival",
             "comparisons": comps,
-            "verdict": _overall([c["outcome"] for c in comps.values()]),
+            "verdict": _overall(list(comps.values()), higher),
         }
     slow, fast = h.get("cartpole_slow", {}), h.get("cartpole_fast", {})
     if slow.get("n") and fast.get("n"):
-        d = bootstrap_diff(slow["per_seed_mean_H"], fast["per_seed_mean_H"])  # slow - fast > 0: narrows
-        outcome = _sign(d, True)
+        comps = {}  # slow minus fast > 0: H narrows when the world changes faster
+        for stat in ("mean", "median"):
+            d = bootstrap_diff(slow[f"per_seed_{stat}_H"], fast[f"per_seed_{stat}_H"])
+            comps[f"cartpole_slow-fast:{stat}_H"] = {**d, "outcome": _sign(d, True)}
         out["h_narrows_when_faster"] = {
-            "metric": "per-seed mean H, slow minus fast (NS CartPole)",
-            "comparisons": {"cartpole_slow-fast": {**d, "outcome": outcome}},
-            "verdict": _overall([outcome]),
+            "metric": "per-seed mean and median H of AdaptiveH, slow minus fast (NS CartPole)",
+            "comparisons": comps,
+            "verdict": _overall(list(comps.values())),
         }
     else:
         out["h_narrows_when_faster"] = {"verdict": "no data", "comparisons": {}}
