@@ -29,10 +29,7 @@ def _finite_stat(stat: dict) -> None:
     assert stat["lo"] - 1e-9 <= stat["mean"] <= stat["hi"] + 1e-9
 
 
-pytestmark = pytest.mark.slow  # the tiny pipeline takes 1-3 minutes (one process per run)
-
-
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module")  # the tiny pipeline takes 1-4 minutes: 32 runs, one process each
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("paper")
     summary = pb.main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
