@@ -202,7 +202,7 @@ class RobotIONode:
                     position=scene.target.position.tolist(),
                     velocity=scene.target_velocity().tolist(),
                     valid=True,
-                    frame_stamp=scene.time,
+                    frame_stamp=time.time(),  # when observed, on the wall clock like a camera frame's
                 )
             )
 

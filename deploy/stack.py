@@ -168,14 +168,14 @@ class Stack:
         bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self.telemetry.append)
         t0 = time.monotonic()
         try:
-            self._spawn("robot_io", self._cmd("robot-io", "--token", self.token, "--log-level", "WARNING"))
+            self._spawn("robot_io", self._cmd("robot-io", f"--token={self.token}", "--log-level", "WARNING"))
             if self.data.get("vision"):
                 self._spawn("vision", self._cmd("vision", "--log-level", "WARNING"))
             if self.data.get("monitor") is not None:
-                self._spawn("monitor", self._cmd("monitor", "--token", self.token, "--log-level", "WARNING"))
+                self._spawn("monitor", self._cmd("monitor", f"--token={self.token}", "--log-level", "WARNING"))
                 self._wait_monitor_url()
                 print(f"monitor: {self.monitor_url}", flush=True)
-            learn = self._cmd("learn", "--token", self.token, "--log-level", "WARNING")
+            learn = self._cmd("learn", f"--token={self.token}", "--log-level", "WARNING")
             if self.steps is not None:
                 learn += ["--steps", str(self.steps)]
             self._spawn("learner", learn)

@@ -61,6 +61,13 @@ def extrapolate(obs: np.ndarray, action: np.ndarray, dt: float) -> np.ndarray:
     return nxt
 
 
+def _seen_at(target: m.Target | None) -> float:
+    """When the target was observed: the camera frame's time, else the message's (ground truth)."""
+    if target is None:
+        return -np.inf
+    return target.frame_stamp if target.frame_stamp > 0 else target.stamp
+
+
 class ZenohReachEnv(gym.Env):
     """The reach task over Zenoh. ``paused`` (set by the learner node) makes ``step`` wait."""
 
@@ -162,8 +169,12 @@ class ZenohReachEnv(gym.Env):
         state = m.decode(reply.state, m.RobotState)
         with self._cond:
             self._state = state
-        if not self._wait(lambda: self._target is not None, self.settings.reset_timeout_s):
-            raise TimeoutError(f"no valid target on {self.bus.key(self.settings.target_topic)}")
+        # Only a target seen after the reset: a reset moves the (simulated) target, and the last message
+        # from before it put 20-40 cm jumps inside episodes (measured), which wrecked the critic.
+        if not self._wait(lambda: _seen_at(self._target) >= state.stamp, self.settings.reset_timeout_s):
+            raise TimeoutError(
+                f"no valid target on {self.bus.key(self.settings.target_topic)} since the reset"
+            )
         self._steps = 0
         obs, _, info = self._observe()
         return obs, info
