@@ -172,7 +172,9 @@ class Stack:
             if self.data.get("vision"):
                 self._spawn("vision", self._cmd("vision", "--log-level", "WARNING"))
             if self.data.get("monitor") is not None:
-                self._spawn("monitor", self._cmd("monitor", f"--token={self.token}", "--log-level", "WARNING"))
+                self._spawn(
+                    "monitor", self._cmd("monitor", f"--token={self.token}", "--log-level", "WARNING")
+                )
                 self._wait_monitor_url()
                 print(f"monitor: {self.monitor_url}", flush=True)
             learn = self._cmd("learn", f"--token={self.token}", "--log-level", "WARNING")
