@@ -53,3 +53,11 @@ def build(cls: type[T], data: dict[str, Any] | None, where: str) -> T:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def robot_name(data: dict[str, Any], path: str | Path) -> str:
+    """The top-level ``name``: one Zenoh key segment, shared by every part of one robot's stack."""
+    name = data.get("name", "panda")
+    if not isinstance(name, str) or not name or "/" in name or "*" in name:
+        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    return name

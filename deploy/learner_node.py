@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import ConfigError, build, load_yaml
+from deploy.config import build, load_yaml, robot_name
 from deploy.training import summarize
 from deploy.transport import Bus, ZenohConfig, open_session
 from deploy.zenoh_env import EnvSettings, EnvStopped, ZenohReachEnv, extrapolate
@@ -76,9 +76,7 @@ class LearnerSettings:
 def load_settings(path: str | Path, overrides: dict[str, Any] | None = None) -> LearnerSettings:
     """Read ``name``, ``zenoh``, ``learner`` and the robot's workspace/rate/step from a top-level config."""
     data = load_yaml(path)
-    name = data.get("name", "panda")
-    if not isinstance(name, str) or not name or "/" in name or "*" in name:
-        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    name = robot_name(data, path)
     section = {**(data.get("learner") or {}), **{k: v for k, v in (overrides or {}).items() if v is not None}}
     lc = build(LearnerConfig, section, f"{path}: learner")
     robot = data.get("robot") or {}

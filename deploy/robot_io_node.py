@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import ConfigError, build, load_yaml
+from deploy.config import build, load_yaml, robot_name
 from deploy.transport import Bus, ZenohConfig, open_session
 from robot_io.config import RobotConfig
-from robot_io.controller import RobotController, TickResult
+from robot_io.controller import ArmState, RobotController, TickResult
 
 log = logging.getLogger(__name__)
 # Simulation only: the target's ground-truth pose, for tests and vision accuracy checks (never the learner).
@@ -39,9 +39,7 @@ class RobotIOSettings:
 def load_settings(path: str | Path) -> RobotIOSettings:
     """Read ``name``, ``zenoh`` and ``robot`` from a top-level config (other sections are others')."""
     data = load_yaml(path)
-    name = data.get("name", "panda")
-    if not isinstance(name, str) or not name or "/" in name or "*" in name:
-        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    name = robot_name(data, path)
     return RobotIOSettings(
         name=name,
         zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
@@ -50,7 +48,10 @@ def load_settings(path: str | Path) -> RobotIOSettings:
 
 
 def state_message(result: TickResult, seq: int) -> m.RobotState:
-    s = result.state
+    return robot_state_message(result.state, seq)
+
+
+def robot_state_message(s: ArmState, seq: int) -> m.RobotState:
     return m.RobotState(
         seq=seq,
         q=s.q.tolist(),
@@ -220,17 +221,8 @@ class RobotIONode:
             box.append(reply)
             done.set()
 
-    def _snapshot(self, state) -> m.RobotState:
-        return m.RobotState(
-            seq=self._next("state"),
-            q=state.q.tolist(),
-            dq=state.dq.tolist(),
-            ee_pos=state.ee_pos.tolist(),
-            ee_vel=state.ee_vel.tolist(),
-            mode=state.mode,
-            chunk_seq=state.chunk_seq,
-            queue_len=state.queue_len,
-        )
+    def _snapshot(self, state: ArmState) -> m.RobotState:
+        return robot_state_message(state, self._next("state"))
 
     def run(self) -> None:
         """Tick at the control rate until ``stop()``; between ticks serve resets and e-stops at once."""

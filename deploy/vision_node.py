@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import ConfigError, build, load_yaml
+from deploy.config import build, load_yaml, robot_name
 from deploy.transport import Bus, ZenohConfig, open_session
 from vision.cameras.protocol import Camera, CameraError, Frame
 from vision.config import Intrinsics, VisionConfig
@@ -47,9 +47,7 @@ def load_vision_config(data: dict[str, Any] | None, where: str = "vision") -> Vi
 def load_settings(path: str | Path) -> VisionSettings:
     """Read ``name``, ``zenoh`` and ``vision`` from a top-level config (other sections are others')."""
     data = load_yaml(path)
-    name = data.get("name", "panda")
-    if not isinstance(name, str) or not name or "/" in name or "*" in name:
-        raise ConfigError(f"{path}: name must be a non-empty key segment (no '/' or '*'), got {name!r}")
+    name = robot_name(data, path)
     return VisionSettings(
         name=name,
         zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
