@@ -1,9 +1,10 @@
 """The whole stack over Zenoh on loopback: ``adaptiveh up`` with robot-io (PyBullet), vision (sim camera),
 monitor and AdaptiveH learning NS Reach, all separate processes; then the recording replays.
 
-Bar (stated in the issue's terms): mean final distance to the target over the last quarter of episodes
-below the first quarter's, and the last quarter's success rate at least the first's; retreats happen and
-at least one retreat's chunk preempts queued actions on the robot (dropped > 0).
+Bar (the issue's): the last quarter's success rate above the first quarter's and at least SUCCESS_BAR,
+its mean final distance below the first quarter's; retreats happen and at least one retreat's chunk
+preempts queued actions on the robot (dropped > 0). Marked ``e2e`` (out of the default run): with the
+vision target it does not pass yet (4000 steps: distance 0.39 -> 0.31 m, success 0 -> 0).
 """
 
 import json
@@ -17,7 +18,8 @@ import yaml
 
 from deploy import recording
 
-STEPS = 2400  # 2 min at 20 Hz
+STEPS = 4000  # about 4-5 min at 20 Hz on a loaded machine
+SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the first quarter's
 
 
 @pytest.mark.e2e
@@ -50,7 +52,7 @@ def test_stack_learns_reach_over_zenoh(tmp_path):
     first, last = np.mean(dist[:q]), np.mean(dist[-q:])
     print(f"distance first quarter {first:.3f} last quarter {last:.3f}; success {succ[:q]} -> {succ[-q:]}")
     assert last < first
-    assert np.mean(succ[-q:]) >= np.mean(succ[:q])
+    assert np.mean(succ[-q:]) > np.mean(succ[:q]) and np.mean(succ[-q:]) >= SUCCESS_BAR
     assert s["reasons"].get("retreat", 0) > 10
     assert s["retreat_preemptions"] > 0 and s["retreat_dropped"] > 0
     assert "liveliness" not in s["safety_events"] or s["safety_events"]["liveliness"] <= 1  # only at shutdown
