@@ -233,8 +233,8 @@ class RobotIONode:
                 self._publish(self.controller.tick(now))
                 self.ticks += 1
                 next_tick += self.period
-                if now - next_tick > self.period:  # fell behind (e.g. a long reset): do not burst
-                    next_tick = now + self.period
+                if next_tick <= time.monotonic():  # fell behind (a long reset, a render): never burst;
+                    next_tick = time.monotonic() + self.period  # the learner gets a full period to answer
                 for interval, fn, last in self._periodic:
                     if now - last[0] >= interval:
                         last[0] = now
