@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from deploy.commands import setup_logging
+
 log = logging.getLogger(__name__)
 
 
@@ -127,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.calibration import CalibrationError, solve_eye_to_hand
     from vision.extrinsics import matrix_to_pose, rotation_error_deg, translation_error
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     try:
         settings = load_settings(args.config)
     except ConfigError as exc:

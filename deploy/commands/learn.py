@@ -8,6 +8,8 @@ import logging
 import signal
 import sys
 
+from deploy.commands import setup_logging
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.config import ConfigError
     from deploy.learner_node import LearnerNode, load_settings
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
     try:
         settings = load_settings(args.config, overrides)

@@ -7,6 +7,8 @@ import logging
 import signal
 import threading
 
+from deploy.commands import setup_logging
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("monitor", help="serve the monitor web page (retreats, chunks, camera, e-stop)")
@@ -23,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.monitor.server import MonitorConfig, MonitorServer
     from deploy.transport import Bus, ZenohConfig, open_session
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     try:
         data = load_yaml(args.config)
         section = dict(data.get("monitor") or {})

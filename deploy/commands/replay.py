@@ -11,6 +11,8 @@ import logging
 import signal
 import threading
 
+from deploy.commands import setup_logging
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("replay", help="replay an MCAP recording into the monitor")
@@ -42,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.recording import read, recorded_robot, replay
     from deploy.transport import Bus, ZenohConfig, open_session
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     try:
         data = load_yaml(args.config)
         zc = build(ZenohConfig, data.get("zenoh"), "zenoh")

@@ -6,6 +6,7 @@ import argparse
 import logging
 import signal
 
+from deploy.commands import setup_logging
 from deploy.config import ConfigError
 
 
@@ -38,7 +39,7 @@ def _render_sim_camera(node, path: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from deploy.robot_io_node import RobotIONode, load_settings
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     try:
         settings = load_settings(args.config)
     except ConfigError as exc:

@@ -7,6 +7,8 @@ import json
 import logging
 import signal
 
+from deploy.commands import setup_logging
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("up", help="start the whole stack on this machine (Ctrl-C stops it cleanly)")
@@ -25,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.config import ConfigError
     from deploy.stack import Stack, check
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     if args.check:
         ok, lines = check(args.config)
         for line in lines:

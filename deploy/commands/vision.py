@@ -6,6 +6,8 @@ import argparse
 import logging
 import signal
 
+from deploy.commands import setup_logging
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("vision", help="run the vision process: camera frames in, 3D target out")
@@ -22,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.vision_node import VisionNode, load_settings
     from vision.cameras.protocol import CameraError
 
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    setup_logging(args.log_level)
     try:
         settings = load_settings(args.config)
     except ConfigError as exc:
