@@ -7,8 +7,8 @@
    (validation, detection, deprojection, tracking).
 2. Sim render (PyBullet TinyRenderer, with depth conversion and noise) at the configured size and at
    640x480, of the full scene (Panda, table, target).
-3. End to end: this process renders and publishes ``camera/frame`` at the configured rate (as the
-   robot-io mock does); ``adaptiveh vision`` runs in another process; this process receives
+3. End to end: this process renders and publishes ``camera/frame`` at the configured rate
+   (``vision.camera: frames``); ``adaptiveh vision`` runs in another process; this process receives
    ``target``. Latency from the frame's capture stamp (taken before rendering, like a camera's
    exposure stamp) to receipt, and from publication to receipt (render time excluded).
 """
@@ -134,6 +134,7 @@ def bench_latency(config_path: Path, seconds: float) -> dict:
     port = random.randint(20000, 60000)
     raw["name"] = f"bench{random.randint(0, 10**6)}"
     raw["zenoh"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}
+    raw["vision"]["camera"] = "frames"  # this process renders and publishes; vision only processes
     tmp = Path(tempfile.mkdtemp(prefix="vision_bench_")) / "config.yaml"
     tmp.write_text(yaml.safe_dump(raw))
     vision = load_vision_config(raw["vision"])

@@ -35,6 +35,9 @@ def key(robot: str, topic: str) -> str:
 STATE = "state"
 TARGET = "target"
 CAMERA = "camera/frame"
+# Simulation only: the target's ground-truth pose, for the sim camera, tests and benchmarks (never the learner's
+# observation unless a test asks for it with ``learner.target_topic``).
+TARGET_TRUTH = "sim/target_truth"
 CAMERA_ANNOTATED = "camera/annotated"
 CMD_CHUNK = "cmd/chunk"
 CHUNK_STATUS = "cmd/status"
@@ -86,6 +89,8 @@ class Target(Message):
     covariance: list[float] = field(default_factory=lambda: [0.0] * 9)
     valid: bool = False
     frame_stamp: float = 0.0
+    # tracking: a detection was fused at frame_stamp | coasting: predicted, no fresh fix | lost | none
+    status: str = "tracking"
     VECTORS: ClassVar[dict[str, int | None]] = {"position": 3, "velocity": 3, "covariance": 9}
 
 

@@ -25,8 +25,6 @@ from robot_io.config import RobotConfig
 from robot_io.controller import ArmState, RobotController, TickResult
 
 log = logging.getLogger(__name__)
-# Simulation only: the target's ground-truth pose, for tests and vision accuracy checks (never the learner).
-TARGET_TRUTH = "sim/target_truth"
 
 
 @dataclass(frozen=True)
@@ -83,14 +81,13 @@ class RobotIONode:
         self._pub_state = self.bus.publisher(m.STATE)
         self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
-        self._pub_truth = self.bus.publisher(TARGET_TRUTH) if self.scene is not None else None
+        self._pub_truth = self.bus.publisher(m.TARGET_TRUTH) if self.scene is not None else None
         self._seq = {"state": 0, "status": 0, "safety": 0, "truth": 0}
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._resets: list[tuple[int, threading.Event, list[m.ResetReply]]] = []
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
-        self._periodic: list[tuple[float, Callable[[], None], list[float]]] = []
         self.ticks = 0
         self.bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._on_chunk, on_bad=self._on_bad)
         self.bus.subscribe(m.CONTROL, m.Control, self._on_control, on_bad=self._on_bad)
@@ -98,15 +95,10 @@ class RobotIONode:
         self.bus.watch_alive(self._on_alive)
         self.bus.declare_alive("robot_io")
 
-    # -- the scene, for the sim camera ---------------------------------------------------------------
     @property
     def scene(self):
-        """The PyBullet scene when the backend is the mock (render it from ``add_periodic`` only)."""
+        """The PyBullet scene when the backend is the mock (its target is published as ground truth)."""
         return getattr(self.controller.backend, "scene", None)
-
-    def add_periodic(self, rate_hz: float, fn: Callable[[], None]) -> None:
-        """Run ``fn`` on the control thread at about ``rate_hz`` (e.g. render and publish camera frames)."""
-        self._periodic.append((1.0 / rate_hz, fn, [0.0]))
 
     # -- Zenoh callbacks (Zenoh threads) -------------------------------------------------------------
     def _on_bad(self, topic: str, exc: Exception) -> None:
@@ -233,15 +225,8 @@ class RobotIONode:
                 self._publish(self.controller.tick(now))
                 self.ticks += 1
                 next_tick += self.period
-                if next_tick <= time.monotonic():  # fell behind (a long reset, a render): never burst;
+                if next_tick <= time.monotonic():  # fell behind (a long reset): never burst;
                     next_tick = time.monotonic() + self.period  # the learner gets a full period to answer
-                for interval, fn, last in self._periodic:
-                    if now - last[0] >= interval:
-                        last[0] = now
-                        try:
-                            fn()
-                        except Exception:
-                            log.exception("periodic task failed")
             self._wake.wait(timeout=max(0.0, next_tick - time.monotonic()))
             if self._wake.is_set():
                 self._wake.clear()

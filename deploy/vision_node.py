@@ -1,8 +1,10 @@
 """The vision process: camera frames in, ``target`` out, over Zenoh.
 
-Frames come from the ``camera/frame`` topic in simulation (rendered by the physics owner, the
-robot-io mock, with ``SimFramePublisher`` below) or straight from a RealSense on the real robot; both
-feed the same ``vision.pipeline.VisionPipeline``. Every frame gives one ``Target`` (``valid`` False
+The camera is chosen by ``vision.camera``: ``sim`` renders a replica of the simulated world in this
+process (``vision.cameras.sim_mirror``, posed from robot-io's ``state`` and ``sim/target_truth``, so
+rendering never stalls the control loop), ``realsense`` reads the device, and ``frames`` takes frames
+from the ``camera/frame`` topic (published by another process, e.g. ``SimFramePublisher`` below in the
+vision benchmark). All feed the same ``vision.pipeline.VisionPipeline``. Every frame gives one ``Target`` (``valid`` False
 when lost); a downscaled annotated JPEG goes to ``camera/annotated`` at a low rate. Bad frames, bad
 messages and camera errors become ``events/safety`` messages (kinds ``bad_frame``, ``bad_message``,
 ``camera_error``; ``held`` False: vision never holds the arm itself), rate-limited, and the process
@@ -92,6 +94,7 @@ def target_message(out: PipelineOutput, seq: int) -> m.Target:
         covariance=[float(x) for x in np.asarray(est.covariance).ravel()],
         valid=bool(est.valid),
         frame_stamp=out.frame_stamp,
+        status=est.status,
     )
 
 
@@ -146,13 +149,30 @@ class VisionNode:
         self.frames = 0
         self.dropped = 0
         self.camera = camera
-        if self.config.camera == "sim" and camera is None:
-            self.bus.subscribe(m.CAMERA, m.CameraFrame, self._offer, on_bad=self._on_bad)
-        elif camera is None:
-            from vision.cameras.realsense import RealSenseCamera
-
-            self.camera = RealSenseCamera(self.config.realsense)
+        if camera is None:
+            self.camera = self._open_camera()
         self.bus.declare_alive("vision")
+
+    def _open_camera(self) -> Camera | None:
+        """The configured camera (None for ``frames``: they arrive on ``camera/frame``)."""
+        if self.config.camera == "frames":
+            self.bus.subscribe(m.CAMERA, m.CameraFrame, self._offer, on_bad=self._on_bad)
+            return None
+        if self.config.camera == "sim":
+            from vision.cameras.sim_mirror import MirrorSimCamera
+
+            mirror = MirrorSimCamera(self.config)
+            self.bus.subscribe(m.STATE, m.RobotState, lambda s: mirror.set_joints(s.q), on_bad=self._on_bad)
+            self.bus.subscribe(
+                m.TARGET_TRUTH,
+                m.Target,
+                lambda t: mirror.set_target(t.position, t.frame_stamp),
+                on_bad=self._on_bad,
+            )
+            return mirror
+        from vision.cameras.realsense import RealSenseCamera
+
+        return RealSenseCamera(self.config.realsense)
 
     # -- inputs ------------------------------------------------------------------------------------
     def _offer(self, item: Frame | m.CameraFrame) -> None:

@@ -68,6 +68,11 @@ def _seen_at(target: m.Target | None) -> float:
     return target.frame_stamp if target.frame_stamp > 0 else target.stamp
 
 
+def _fixed_since(target: m.Target | None, stamp: float) -> bool:
+    """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
+    return target is not None and target.status == "tracking" and _seen_at(target) >= stamp
+
+
 class ZenohReachEnv(gym.Env):
     """The reach task over Zenoh. ``paused`` (set by the learner node) makes ``step`` wait."""
 
@@ -169,9 +174,10 @@ class ZenohReachEnv(gym.Env):
         state = m.decode(reply.state, m.RobotState)
         with self._cond:
             self._state = state
-        # Only a target seen after the reset: a reset moves the (simulated) target, and the last message
-        # from before it put 20-40 cm jumps inside episodes (measured), which wrecked the critic.
-        if not self._wait(lambda: _seen_at(self._target) >= state.stamp, self.settings.reset_timeout_s):
+        # Only a target detected after the reset: a reset moves the (simulated) target, and the last
+        # message from before it (or the tracker coasting on the old track) put 20-40 cm jumps inside
+        # episodes (measured), which wrecked the critic.
+        if not self._wait(lambda: _fixed_since(self._target, state.stamp), self.settings.reset_timeout_s):
             raise TimeoutError(
                 f"no valid target on {self.bus.key(self.settings.target_topic)} since the reset"
             )

@@ -272,6 +272,15 @@ class PandaScene:
             self.target_id, self.target.position.tolist(), [0, 0, 0, 1], physicsClientId=self.client_id
         )
 
+    def show(self, q: np.ndarray, target_position: np.ndarray) -> None:
+        """Pose the arm and the target without physics: a kinematic replica for rendering elsewhere."""
+        cid = self.client_id
+        for j, qj in zip(self.arm_joints, q, strict=True):
+            pb.resetJointState(self.robot_id, j, float(qj), 0.0, physicsClientId=cid)
+        pb.resetBasePositionAndOrientation(
+            self.target_id, [float(x) for x in target_position], [0, 0, 0, 1], physicsClientId=cid
+        )
+
     # -- time --------------------------------------------------------------------------------------
     def step(self, n: int = 1) -> None:
         """Advance physics and the target by ``n`` time steps."""

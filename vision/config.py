@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-CAMERAS = ("sim", "realsense")
+CAMERAS = ("sim", "frames", "realsense")
 TARGET_SHAPES = ("box", "sphere", "point")
 
 
@@ -200,6 +200,9 @@ class TrackingConfig:
     ``accel_sigma``: white-acceleration noise (m/s^2) — how fast the target may change velocity.
     ``lost_after_s``: time without an accepted detection after which the target is reported lost.
     ``gate_sigma``: Mahalanobis gate rejecting measurements that jump implausibly far.
+    ``reacquire_after``: this many consecutive gated-out detections that agree with each other (moving
+    at most ``max_speed`` m/s between them) mean the target really moved (picked up and put down, a
+    sim reset): the track restarts there instead of coasting on the old one until it is lost.
     """
 
     accel_sigma: float = 0.4
@@ -207,6 +210,8 @@ class TrackingConfig:
     lost_after_s: float = 0.3
     gate_sigma: float = 6.0
     max_dt: float = 0.5
+    reacquire_after: int = 2
+    max_speed: float = 1.0
 
     def __post_init__(self) -> None:
         if self.accel_sigma <= 0 or self.measurement_sigma <= 0:
@@ -215,6 +220,10 @@ class TrackingConfig:
             raise ValueError(f"lost_after_s must be > 0, got {self.lost_after_s}")
         if self.gate_sigma <= 0 or self.max_dt <= 0:
             raise ValueError("gate_sigma and max_dt must be > 0")
+        if self.reacquire_after < 1:
+            raise ValueError(f"reacquire_after must be >= 1, got {self.reacquire_after}")
+        if self.max_speed <= 0:
+            raise ValueError(f"max_speed must be > 0, got {self.max_speed}")
 
 
 @dataclass(frozen=True)
@@ -255,7 +264,7 @@ class VisionConfig:
     """The whole ``vision:`` section."""
 
     camera: str = "sim"
-    rate_hz: float = 15.0  # the sim camera's frame rate (the physics owner renders at this rate)
+    rate_hz: float = 15.0  # the sim camera's frame rate
     intrinsics: Intrinsics = field(default_factory=Intrinsics)
     extrinsics: Pose = field(default_factory=Pose)
     sim: SimCameraConfig = field(default_factory=SimCameraConfig)

@@ -1,8 +1,10 @@
 """Constant-velocity Kalman filter on the target's base-frame position, with a lost flag.
 
 State [p, v] (6), white-acceleration process noise, position measurements. It estimates velocity for
-the learner, rejects implausible jumps with a Mahalanobis gate, and declares the target lost after
-``lost_after_s`` without an accepted measurement: a lost target is reported, never extrapolated.
+the learner, rejects implausible jumps with a Mahalanobis gate (a wrong blob for a frame), restarts the
+track when consecutive rejected detections agree (the target really moved: ``reacquire_after``), and
+declares the target lost after ``lost_after_s`` without an accepted measurement: a lost target is
+reported, never extrapolated.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ class KalmanTracker:
         self.last_measurement: float | None = None
         self.initialised = False
         self.rejected = 0
+        self.reacquired = 0
+        self._outliers: list[tuple[float, np.ndarray]] = []  # consecutive gated-out detections
         self.last_fused = np.zeros(3)
 
     def reset(self) -> None:
@@ -70,6 +74,7 @@ class KalmanTracker:
         self.last_measurement = stamp
         self.last_fused = z.copy()
         self.initialised = True
+        self._outliers = []
 
     def update(self, stamp: float, measurement: np.ndarray | None) -> TrackEstimate:
         """Advance to ``stamp`` and fuse ``measurement`` (base-frame position) when there is one."""
@@ -98,9 +103,24 @@ class KalmanTracker:
                     self.P = 0.5 * (self.P + self.P.T)
                     self.last_measurement = stamp
                     self.last_fused = self.x[:3].copy()
+                    self._outliers = []
                 else:
                     self.rejected += 1
+                    if self._moved(stamp, z):
+                        self.reacquired += 1
+                        self._start(stamp, z)
         return self.estimate(stamp)
+
+    def _moved(self, stamp: float, z: np.ndarray) -> bool:
+        """Record a gated-out detection; True once the last ``reacquire_after`` agree with each other."""
+        cfg = self.config
+        if self._outliers:
+            t_prev, z_prev = self._outliers[-1]
+            reach = cfg.max_speed * max(stamp - t_prev, 0.0) + 2 * cfg.gate_sigma * cfg.measurement_sigma
+            if np.linalg.norm(z - z_prev) > reach:
+                self._outliers = []
+        self._outliers.append((stamp, z))
+        return len(self._outliers) >= cfg.reacquire_after
 
     def estimate(self, stamp: float) -> TrackEstimate:
         """The state at ``stamp`` without fusing anything (coasting), or a lost/none report.

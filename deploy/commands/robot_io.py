@@ -22,20 +22,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _render_sim_camera(node, path: str) -> None:
-    """In simulation the physics owner renders the sim camera (``vision: camera: sim``) for vision."""
-    from deploy.config import load_yaml
-
-    section = load_yaml(path).get("vision")
-    if node.scene is None or not section or section.get("camera", "sim") != "sim":
-        return
-    from deploy.vision_node import SimFramePublisher, load_vision_config
-
-    cfg = load_vision_config(section)
-    node.add_periodic(cfg.rate_hz, SimFramePublisher(node.bus, node.scene.client_id, cfg))
-    logging.info("rendering the sim camera at %.0f Hz for the vision node", cfg.rate_hz)
-
-
 def run(args: argparse.Namespace) -> int:
     from deploy.robot_io_node import RobotIONode, load_settings
 
@@ -47,7 +33,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     watch = tuple(p for p in args.watch.split(",") if p)
     node = RobotIONode(settings, watch_peers=watch, control_token=args.token)
-    _render_sim_camera(node, args.config)
     signal.signal(signal.SIGTERM, lambda *_: node.request_stop())
     logging.info(
         "robot-io '%s' up: backend %s at %.0f Hz",

@@ -15,7 +15,6 @@ import pytest
 import yaml
 
 from deploy import messages as m
-from deploy.robot_io_node import TARGET_TRUTH
 from deploy.transport import Bus, ZenohConfig, open_session
 
 RATE = 20.0
@@ -34,7 +33,7 @@ class Listener:
         bus.subscribe(m.STATE, m.RobotState, self._state)
         bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, lambda s: self._add(self.status, s))
         bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, lambda e: self._add(self.safety, (time.monotonic(), e)))
-        bus.subscribe(TARGET_TRUTH, m.Target, self._truth)
+        bus.subscribe(m.TARGET_TRUTH, m.Target, self._truth)
 
     def _add(self, where, item):
         with self.lock:

@@ -1,7 +1,8 @@
 """The vision process over real Zenoh on loopback: ``adaptiveh vision`` in a subprocess.
 
-The test plays the physics owner (renders the real PyBullet Panda scene and publishes ``camera/frame``
-with ``SimFramePublisher``, as the robot-io mock does) and the consumers (learner, monitor).
+The test plays a frame source (renders the real PyBullet Panda scene and publishes ``camera/frame``
+with ``SimFramePublisher``; ``vision.camera: frames``) and the consumers (learner, monitor). The
+in-process sim camera (``camera: sim``, a replica posed from robot-io's messages) is tested at the end.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from vision.extrinsics import look_at
 
 LOST_AFTER = 0.3
 VISION = {
-    "camera": "sim",
+    "camera": "frames",
     "rate_hz": 10.0,
     "intrinsics": {"width": 320, "height": 240, "fx": 307.5, "fy": 307.5, "cx": 159.5, "cy": 119.5},
     "extrinsics": {
@@ -256,3 +257,47 @@ def test_device_camera_path_reports_camera_errors_and_loses_target():
         node.stop()
         bus.close()
     assert camera.closed
+
+
+def test_sim_camera_renders_the_world_robot_io_publishes_and_says_when_it_stops():
+    """``camera: sim``: the node renders its own replica posed from ``state`` and ``sim/target_truth``
+    (this test publishes them, as robot-io does); targets match the truth of the world they were
+    rendered from, stamped with when it was observed. When the messages stop, the camera reports
+    camera_error and the target goes lost: never an old picture passed off as new."""
+    from deploy.vision_node import VisionNode, VisionSettings
+
+    port = random.randint(20000, 60000)
+    name = f"s{random.randint(0, 10**9)}"
+    vision = load_vision_config({**VISION, "camera": "sim"})
+    node = VisionNode(VisionSettings(name, ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)), vision))
+    bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
+    inbox = Inbox(bus)
+    pub_state, pub_truth = bus.publisher(m.STATE), bus.publisher(m.TARGET_TRUTH)
+    truth_at: dict[float, np.ndarray] = {}
+    try:
+        inbox.wait(lambda: "vision" in inbox.alive)
+        node.start()
+        with PandaScene(motion="slow", seed=4) as scene:
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                scene.step(scene.steps_for(0.05))
+                q, _ = scene.joint_state()
+                stamp = time.time()
+                truth_at[round(stamp, 6)] = scene.target.position.copy()
+                pub_state(m.RobotState(q=q.tolist(), dq=[0.0] * 7))
+                pub_truth(m.Target(position=scene.target.position.tolist(), valid=True, frame_stamp=stamp))
+                time.sleep(0.05)
+        stopped = time.time()
+        inbox.wait(lambda: any(e.kind == "camera_error" for e in inbox.events))
+        inbox.wait(lambda: any(r > stopped + LOST_AFTER and not t.valid for r, t in inbox.targets))
+        with inbox.lock:
+            targets = [t for _, t in inbox.targets]
+            errors = [e.detail for e in inbox.events if e.kind == "camera_error"]
+    finally:
+        node.stop()
+        bus.close()
+    valid = [t for t in targets if t.valid and round(t.frame_stamp, 6) in truth_at]
+    assert len(valid) >= 15  # ~10 Hz for 3 s, on a shared box
+    err = [np.linalg.norm(np.array(t.position) - truth_at[round(t.frame_stamp, 6)]) for t in valid]
+    assert np.median(err) < 0.01 and max(err) < 0.03
+    assert any("physics owner gone" in d for d in errors)

@@ -149,3 +149,24 @@ def test_tracker_lost_reports_last_sighting_then_restarts():
     assert np.allclose(lost.position, [0.44, 0.1, 0.2], atol=0.005) and np.all(lost.velocity == 0)
     again = tracker.update(1.0, np.array([0.6, -0.1, 0.3]))
     assert again.valid and np.allclose(again.position, [0.6, -0.1, 0.3]) and np.all(again.velocity == 0)
+
+
+def test_tracker_reacquires_a_target_that_really_moved():
+    """One wrong blob is rejected; two agreeing detections at a new place restart the track there
+    (a sim reset, an object picked up and put down) instead of coasting until lost; two disagreeing
+    outliers do not."""
+    tracker = KalmanTracker(TrackingConfig(lost_after_s=0.3, reacquire_after=2))
+    for i in range(10):
+        tracker.update(i * 0.1, np.array([0.5, 0.0, 0.3]))
+    first = tracker.update(1.0, np.array([0.3, 0.2, 0.2]))
+    assert first.status == "coasting" and np.linalg.norm(first.position - [0.5, 0, 0.3]) < 0.01
+    second = tracker.update(1.1, np.array([0.301, 0.2, 0.2]))
+    assert tracker.reacquired == 1 and second.status == "tracking"
+    assert np.allclose(second.position, [0.301, 0.2, 0.2]) and np.all(second.velocity == 0)
+    for i in range(5):
+        tracker.update(1.2 + i * 0.1, np.array([0.3, 0.2, 0.2]))
+    tracker.update(1.7, np.array([0.8, -0.3, 0.5]))  # wrong blob
+    est = tracker.update(1.8, np.array([0.3, 0.6, 0.1]))  # another, elsewhere: no agreement
+    assert tracker.reacquired == 1 and np.linalg.norm(est.position - [0.3, 0.2, 0.2]) < 0.01
+    with pytest.raises(ValueError, match="reacquire_after"):
+        TrackingConfig(reacquire_after=0)
