@@ -35,8 +35,8 @@ def key(robot: str, topic: str) -> str:
 STATE = "state"
 TARGET = "target"
 CAMERA = "camera/frame"
-# Simulation only: the target's ground-truth pose, for the sim camera, tests and benchmarks (never the learner's
-# observation unless a test asks for it with ``learner.target_topic``).
+# Simulation only: the target's ground-truth pose, for the sim camera, tests and benchmarks (never the
+# learner's observation unless a test asks for it with ``learner.target_topic``).
 TARGET_TRUTH = "sim/target_truth"
 CAMERA_ANNOTATED = "camera/annotated"
 CMD_CHUNK = "cmd/chunk"

@@ -4,12 +4,12 @@ The camera is chosen by ``vision.camera``: ``sim`` renders a replica of the simu
 process (``vision.cameras.sim_mirror``, posed from robot-io's ``state`` and ``sim/target_truth``, so
 rendering never stalls the control loop), ``realsense`` reads the device, and ``frames`` takes frames
 from the ``camera/frame`` topic (published by another process, e.g. ``SimFramePublisher`` below in the
-vision benchmark). All feed the same ``vision.pipeline.VisionPipeline``. Every frame gives one ``Target`` (``valid`` False
-when lost); a downscaled annotated JPEG goes to ``camera/annotated`` at a low rate. Bad frames, bad
-messages and camera errors become ``events/safety`` messages (kinds ``bad_frame``, ``bad_message``,
-``camera_error``; ``held`` False: vision never holds the arm itself), rate-limited, and the process
-keeps running. Only the newest frame is processed: if processing falls behind, older frames are
-dropped (counted), so latency stays bounded.
+vision benchmark). All feed the same ``vision.pipeline.VisionPipeline``. Every frame gives one
+``Target`` (``valid`` False when lost); a downscaled annotated JPEG goes to ``camera/annotated`` at a
+low rate. Bad frames, bad messages and camera errors become ``events/safety`` messages (kinds
+``bad_frame``, ``bad_message``, ``camera_error``; ``held`` False: vision never holds the arm itself),
+rate-limited, and the process keeps running. Only the newest frame is processed: if processing falls
+behind, older frames are dropped (counted), so latency stays bounded.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """The sim camera as its own device: renders a kinematic replica of the simulated world.
 
 PyBullet holds the GIL for the whole of ``getCameraImage`` (50-180 ms at 320x240 here), so rendering
-inside the physics owner stalls its control loop, and a stalled loop broke learning over the stack.
-A real RealSense runs beside the arm, not inside its controller; this camera does the same: it keeps its
+inside the physics owner stalls its control loop, and a stalled loop broke learning over the stack. A
+real RealSense runs beside the arm, not inside its controller; this camera does the same: it keeps its
 own PyBullet client with the same scene, poses it from the physics owner's published world (joint
-positions and the target's position: ``set_joints``, ``set_target``), and renders at its own rate in whatever process
-owns it (the vision node). A frame's ``stamp`` is when that world was observed, not when it was
-rendered, so latency and tracking are measured from the moment the picture shows.
+positions and the target's position: ``set_joints``, ``set_target``), and renders at its own rate in
+whatever process owns it (the vision node). A frame's ``stamp`` is when that world was observed, not
+when it was rendered, so latency and tracking are measured from the moment the picture shows.
 """
 
 from __future__ import annotations
