@@ -48,7 +48,14 @@ class LearnerConfig:
     plan: str = "hold"
     max_episode_steps: int = 200
     target_topic: str = m.TARGET
-    target_speed_max: float = 0.2
+    # Where the target moves and how fast: the learner scales its state with these, so they must match
+    # the real target's range (NSReach-v0 scales with its motion preset's box and speed). Measured: with
+    # the workspace as the box and 0.2 m/s, in-process NS Reach seed 0 stopped learning (0 % vs 90 %).
+    target_box: tuple[tuple[float, float, float], tuple[float, float, float]] = (
+        (0.35, -0.3, 0.12),
+        (0.65, 0.3, 0.45),
+    )
+    target_speed_max: float = 0.06
     step_timeout_s: float = 2.0
     checkpoint_dir: str = "runs/stack/learner"
     checkpoint_every: int = 500
@@ -63,6 +70,11 @@ class LearnerConfig:
             raise ValueError(f"plan: must be hold or policy, got {self.plan!r}")
         if not isinstance(self.agent, dict):
             raise ValueError("agent: must be a mapping of hyperparameters")
+        lo, hi = (np.asarray(b, float) for b in self.target_box)
+        if lo.shape != (3,) or hi.shape != (3,) or np.any(lo >= hi):
+            raise ValueError(f"target_box: must be [[x, y, z] lo, [x, y, z] hi] with lo < hi, got {self.target_box}")
+        if not self.target_speed_max > 0:
+            raise ValueError(f"target_speed_max: must be > 0, got {self.target_speed_max}")
 
 
 @dataclass(frozen=True)
@@ -89,6 +101,8 @@ def load_settings(path: str | Path, overrides: dict[str, Any] | None = None) -> 
         max_episode_steps=lc.max_episode_steps,
         chunk_len=lc.chunk_len,
         target_topic=lc.target_topic,
+        target_lo=tuple(lc.target_box[0]),
+        target_hi=tuple(lc.target_box[1]),
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
     )

@@ -46,7 +46,9 @@ class EnvSettings:
     max_episode_steps: int = 200
     chunk_len: int = 10
     target_topic: str = m.TARGET
-    target_speed_max: float = 0.2
+    target_lo: tuple[float, float, float] = (0.35, -0.3, 0.12)
+    target_hi: tuple[float, float, float] = (0.65, 0.3, 0.45)
+    target_speed_max: float = 0.06
     step_timeout_s: float = 2.0
     reset_timeout_s: float = 30.0
 
@@ -84,7 +86,9 @@ class ZenohReachEnv(gym.Env):
         self.planner = planner
         self.segment = 0
         lo, hi = settings.workspace_lo, settings.workspace_hi
-        low, high, self.obs_bounds = reach_observation_bounds(lo, hi, lo, hi, settings.target_speed_max)
+        low, high, self.obs_bounds = reach_observation_bounds(
+            lo, hi, settings.target_lo, settings.target_hi, settings.target_speed_max
+        )
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         s = settings.max_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
