@@ -72,7 +72,9 @@ class LearnerConfig:
             raise ValueError("agent: must be a mapping of hyperparameters")
         lo, hi = (np.asarray(b, float) for b in self.target_box)
         if lo.shape != (3,) or hi.shape != (3,) or np.any(lo >= hi):
-            raise ValueError(f"target_box: must be [[x, y, z] lo, [x, y, z] hi] with lo < hi, got {self.target_box}")
+            raise ValueError(
+                f"target_box: must be [[x, y, z] lo, [x, y, z] hi] with lo < hi, got {self.target_box}"
+            )
         if not self.target_speed_max > 0:
             raise ValueError(f"target_speed_max: must be > 0, got {self.target_speed_max}")
 
