@@ -73,6 +73,12 @@ def check(config: str | Path) -> tuple[bool, list[str]]:
             lines.append(f"vision section valid (camera {vcfg.camera})")
             if vcfg.camera == "realsense":
                 needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
+            if vcfg.camera == "sim" and robot.robot.backend != "pybullet":
+                ok = False
+                lines.append(
+                    "config error: vision camera sim renders the simulated world, which only the "
+                    f"pybullet backend publishes (robot backend is {robot.robot.backend}): use realsense"
+                )
         except ConfigError as exc:
             ok = False
             lines.append(f"config error: {exc}")

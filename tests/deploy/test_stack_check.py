@@ -33,3 +33,11 @@ def test_sim_check_passes_and_bad_config_is_named(tmp_path):
     bad.write_text(open("configs/sim.yaml").read().replace("algo: adaptiveh", "algo: ppo"))
     out = _check(str(bad))
     assert out.returncode == 1 and "learner" in out.stdout and "ppo" in out.stdout
+
+
+def test_sim_camera_on_a_real_arm_is_refused(tmp_path):
+    """The sim camera renders the world the pybullet mock publishes; on a Franka it would see nothing."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(open("configs/franka_realsense.yaml").read().replace("camera: realsense", "camera: sim"))
+    out = _check(str(bad))
+    assert out.returncode == 1 and "only the pybullet backend publishes" in out.stdout
