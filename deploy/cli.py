@@ -9,11 +9,14 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import faulthandler  # noqa: E402
 import importlib  # noqa: E402
 import pkgutil  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
 
 from deploy import commands  # noqa: E402
+from deploy.commands import die_with_supervisor  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,7 +28,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _dump_stacks_on_sigusr1() -> None:
+    """``kill -USR1 <pid>`` prints every thread's stack to stderr (the part's log): for hangs.
+
+    Needs stderr to be a real file; under a test's captured stderr there is nothing to dump to.
+    """
+    try:
+        sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):
+        return
+    if hasattr(faulthandler, "register"):
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+
+
 def main(argv: list[str] | None = None) -> int:
+    _dump_stacks_on_sigusr1()
+    die_with_supervisor()
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

@@ -29,6 +29,7 @@ import numpy as np
 import zenoh
 
 from deploy import messages as m
+from deploy.commands import SUPERVISOR_ENV
 from deploy.config import ConfigError, build, load_yaml
 from deploy.recording import Recorder
 from deploy.transport import Bus, ZenohConfig, open_session
@@ -131,7 +132,7 @@ class Stack:
         logs = self.run_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         fh = open(logs / f"{part}.log", "w")
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", SUPERVISOR_ENV: str(os.getpid())}
         self.procs[part] = subprocess.Popen(
             cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True
         )

@@ -8,7 +8,7 @@ import logging
 import signal
 import sys
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
         logging.error("%s", exc)
         return 2
     node = LearnerNode(settings, control_token=args.token)
-    signal.signal(signal.SIGTERM, lambda *_: node.request_stop())
-    signal.signal(signal.SIGINT, lambda *_: node.request_stop())
+    on_stop_signal(node.request_stop, signal.SIGTERM, signal.SIGINT)
     logging.info(
         "learner %s on '%s': %d steps (resuming at %d), checkpoints in %s",
         settings.learner.algo,

@@ -7,7 +7,7 @@ import logging
 import signal
 import threading
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     bus = Bus(open_session(zc), data.get("name", "panda"))
     server = MonitorServer(bus, cfg, args.token or None).start()
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    on_stop_signal(stop.set, signal.SIGTERM)
     print(f"monitor: {server.url}?token={server.token}", flush=True)
     print(f"monitor token: {server.token}", flush=True)
     try:

@@ -11,7 +11,7 @@ import logging
 import signal
 import threading
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -62,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
         logging.error("%s: not a readable recording: %s", args.file, exc)
         return 2
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    on_stop_signal(stop.set, signal.SIGTERM, signal.SIGINT)
     session = open_session(zc)
     server = None
     if not args.no_monitor:

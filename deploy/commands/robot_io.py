@@ -6,7 +6,7 @@ import argparse
 import logging
 import signal
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 from deploy.config import ConfigError
 
 
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     watch = tuple(p for p in args.watch.split(",") if p)
     node = RobotIONode(settings, watch_peers=watch, control_token=args.token)
-    signal.signal(signal.SIGTERM, lambda *_: node.request_stop())
+    on_stop_signal(node.request_stop, signal.SIGTERM)
     logging.info(
         "robot-io '%s' up: backend %s at %.0f Hz",
         settings.name,

@@ -6,6 +6,8 @@ import argparse
 import json
 import threading
 
+from deploy.commands import on_stop_signal
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("router", help="run a Zenoh router that parts connect to as clients")
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     zc.insert_json5("scouting/multicast/enabled", "false")
     session = zenoh.open(zc)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    on_stop_signal(stop.set, signal.SIGTERM)
     print(f"zenoh router {session.zid()} listening on {listen}, connected to {args.connect}", flush=True)
     try:
         stop.wait(args.duration if args.duration > 0 else None)

@@ -7,7 +7,7 @@ import json
 import logging
 import signal
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,8 +39,7 @@ def run(args: argparse.Namespace) -> int:
         logging.error("%s", exc)
         return 2
     print(f"operator token: {stack.token}", flush=True)
-    signal.signal(signal.SIGTERM, lambda *_: stack.request_stop())
-    signal.signal(signal.SIGINT, lambda *_: stack.request_stop())
+    on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:
         summary = stack.run()
     except RuntimeError as exc:

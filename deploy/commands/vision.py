@@ -6,7 +6,7 @@ import argparse
 import logging
 import signal
 
-from deploy.commands import setup_logging
+from deploy.commands import on_stop_signal, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     except CameraError as exc:
         logging.error("%s", exc)
         return 3
-    signal.signal(signal.SIGTERM, lambda *_: node.request_stop())
+    on_stop_signal(node.request_stop, signal.SIGTERM)
     logging.info("vision '%s' up: camera %s", settings.name, settings.vision.camera)
     node.start()
     try:
