@@ -134,8 +134,18 @@ class ZenohReachEnv(gym.Env):
         return self._state.mode if self._state is not None else "unknown"
 
     def _wait(self, pred: Callable[[], bool], timeout: float) -> bool:
+        """Wait for ``pred`` up to ``timeout``; ``EnvStopped`` as soon as the node is stopping."""
+        deadline = time.monotonic() + timeout
         with self._cond:
-            return self._cond.wait_for(pred, timeout)
+            while True:
+                if self.stop.is_set():
+                    raise EnvStopped("stopped while waiting for the robot")
+                left = deadline - time.monotonic()
+                # Short slices: a stop request sets an Event, which does not wake this condition.
+                if self._cond.wait_for(pred, min(max(left, 0.0), 0.25)):
+                    return True
+                if left <= 0:
+                    return False
 
     def _observe(self) -> tuple[np.ndarray, float, dict[str, Any]]:
         with self._cond:
@@ -160,6 +170,8 @@ class ZenohReachEnv(gym.Env):
         super().reset(seed=seed)
         deadline = time.monotonic() + self.settings.reset_timeout_s
         while True:
+            if self.stop.is_set():
+                raise EnvStopped("stopped while resetting the robot")
             try:
                 reply = self.bus.query(
                     m.RESET,

@@ -16,6 +16,7 @@ import urllib.request
 from pathlib import Path
 
 import yaml
+from stack_helpers import learn_one_episode
 
 PROBE = r"""
 import sys, time, threading
@@ -93,15 +94,7 @@ def test_parts_started_alone_reach_each_other(tmp_path: Path):
         )
         parts.append(monitor)
         url = monitor.stdout.readline().split(" ", 1)[1].split("?")[0].strip()
-        learn = subprocess.run(
-            _cli("learn", "--config", c, "--log-level", "WARNING"),
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
-        assert learn.returncode == 0, learn.stderr[-2000:]
-        res = json.loads((tmp_path / "l" / "result.json").read_text())
-        assert res["global_step"] == 60 and len(res["episodes"]) == 1
+        res = learn_one_episode(Path(c), tmp_path / "l")
         with urllib.request.urlopen(url + "api/state", timeout=5) as r:
             state = json.loads(r.read())
         assert state["robot"]["mode"] in ("running", "held")  # robot-io -> monitor

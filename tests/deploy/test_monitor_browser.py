@@ -2,7 +2,6 @@
 retreat events arrive, E-STOP holds the arm, release lets learning resume. Saves a screenshot."""
 
 import json
-import random
 import re
 import subprocess
 import sys
@@ -11,7 +10,6 @@ import urllib.request
 from pathlib import Path
 
 import pytest
-import yaml
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = [
@@ -46,18 +44,10 @@ def _wait(pred, timeout: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def test_monitor_in_chromium(tmp_path):
+def test_monitor_in_chromium(tmp_path, stack_config):
     from playwright.sync_api import sync_playwright
 
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"mon{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-    cfg["vision"]["rate_hz"] = 5.0
-    cfg["learner"].update(steps=100000, checkpoint_dir=str(tmp_path / "l"))
-    cfg["monitor"]["port"] = 0
-    cfg["recording"]["dir"] = str(tmp_path / "rec")
-    path = tmp_path / "c.yaml"
-    path.write_text(yaml.safe_dump(cfg))
+    path, cfg = stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000)
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
     )

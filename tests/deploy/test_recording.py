@@ -5,7 +5,6 @@ and the monitor's JSON endpoint receive them."""
 from __future__ import annotations
 
 import json
-import random
 import subprocess
 import sys
 import threading
@@ -15,7 +14,6 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-import yaml
 from mcap.reader import make_reader
 
 from deploy import messages as m
@@ -33,18 +31,10 @@ TYPES = {
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path, list]:
+def run(tmp_path_factory: pytest.TempPathFactory, stack_config) -> tuple[dict, Path, list]:
     """One 60-step stack run (robot-io, vision, monitor, learner); returns (config, MCAP path, records)."""
     tmp = tmp_path_factory.mktemp("rec")
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"rec{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-    cfg["vision"]["rate_hz"] = 5.0
-    cfg["learner"].update(steps=60, checkpoint_dir=str(tmp / "l"))
-    cfg["monitor"]["port"] = 0
-    cfg["recording"]["dir"] = str(tmp / "rec")
-    path = tmp / "c.yaml"
-    path.write_text(yaml.safe_dump(cfg))
+    path, cfg = stack_config(tmp, "rec", vision_rate_hz=5.0, steps=60)
     out = tmp / "summary.json"
     proc = subprocess.run(
         [

@@ -1,13 +1,13 @@
 """Two ``adaptiveh router`` processes on different loopback ports; robot-io and the learner connect to
 different routers as clients and a short learning run completes through them."""
 
-import json
 import random
 import subprocess
 import sys
 import time
 
 import yaml
+from stack_helpers import learn_one_episode
 
 
 def test_two_routers_carry_a_run(tmp_path):
@@ -25,15 +25,7 @@ def test_two_routers_carry_a_run(tmp_path):
     learner_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e2]}}))
     robot = subprocess.Popen([sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(robot_cfg)])
     try:
-        learn = subprocess.run(
-            [sys.executable, "-m", "deploy.cli", "learn", "--config", str(learner_cfg)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
-        assert learn.returncode == 0, learn.stderr[-2000:]
-        res = json.loads((tmp_path / "l" / "result.json").read_text())
-        assert res["global_step"] == 60 and len(res["episodes"]) == 1
+        res = learn_one_episode(learner_cfg, tmp_path / "l")
         assert res["chunk_preemptions"] > 0  # the robot's chunk reports came back through both routers
     finally:
         for p in (robot, r2, r1):

@@ -11,13 +11,11 @@ quarter (6000-8000) well after every take-off we saw.
 """
 
 import json
-import random
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-import yaml
 
 from deploy import recording
 
@@ -26,16 +24,8 @@ SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the f
 
 
 @pytest.mark.e2e
-def test_stack_learns_reach_over_zenoh(tmp_path):
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"e2e{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-    cfg["vision"]["rate_hz"] = 10.0
-    cfg["learner"].update(steps=STEPS, checkpoint_dir=str(tmp_path / "learner"), checkpoint_every=600)
-    cfg["monitor"]["port"] = 0
-    cfg["recording"]["dir"] = str(tmp_path / "rec")
-    path = tmp_path / "c.yaml"
-    path.write_text(yaml.safe_dump(cfg))
+def test_stack_learns_reach_over_zenoh(tmp_path, stack_config):
+    path, cfg = stack_config(tmp_path, "e2e", vision_rate_hz=10.0, steps=STEPS, checkpoint_every=600)
     out = tmp_path / "summary.json"
     proc = subprocess.run(
         [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out)],

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -11,7 +10,6 @@ import time
 from pathlib import Path
 
 import pytest
-import yaml
 
 PARTS = ("robot-io", "vision", "learn", "monitor")
 
@@ -33,15 +31,8 @@ def _parts_of(config: Path) -> dict[str, int]:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signal is Linux only")
-def test_parts_stop_when_the_supervisor_is_killed(tmp_path):
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"sup{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-    cfg["learner"].update(steps=100000, checkpoint_dir=str(tmp_path / "learner"))
-    cfg["monitor"]["port"] = 0
-    cfg["recording"]["dir"] = str(tmp_path / "rec")
-    path = tmp_path / "c.yaml"
-    path.write_text(yaml.safe_dump(cfg))
+def test_parts_stop_when_the_supervisor_is_killed(tmp_path, stack_config):
+    path, _ = stack_config(tmp_path, "sup", steps=100000)
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)],
         stdout=subprocess.DEVNULL,

@@ -1,0 +1,44 @@
+"""Helpers for the tests that start the whole stack (imported by name: tests/ is not a package)."""
+
+from __future__ import annotations
+
+import json
+import random
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+def write_stack_config(
+    directory: Path, prefix: str, vision_rate_hz: float | None = None, **learner: Any
+) -> tuple[Path, dict]:
+    """``configs/sim.yaml`` made private to one test: its own robot name and Zenoh hub port, the monitor on
+    a free port, recording and checkpoints under ``directory``; ``learner`` overrides that section."""
+    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg["name"] = f"{prefix}{random.randint(0, 10**6)}"
+    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
+    if vision_rate_hz is not None:
+        cfg["vision"]["rate_hz"] = vision_rate_hz
+    cfg["learner"].update({"checkpoint_dir": str(directory / "learner"), **learner})
+    cfg["monitor"]["port"] = 0
+    cfg["recording"]["dir"] = str(directory / "rec")
+    path = directory / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path, cfg
+
+
+def learn_one_episode(config: Path, checkpoint_dir: Path) -> dict:
+    """Run ``adaptiveh learn`` for the config's 60 steps (one episode) and return its result.json."""
+    learn = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "learn", "--config", str(config), "--log-level", "WARNING"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert learn.returncode == 0, learn.stderr[-2000:]
+    res = json.loads((checkpoint_dir / "result.json").read_text())
+    assert res["global_step"] == 60 and len(res["episodes"]) == 1
+    return res
