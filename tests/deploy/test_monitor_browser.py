@@ -10,6 +10,7 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from stack_helpers import write_stack_config
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = [
@@ -44,10 +45,10 @@ def _wait(pred, timeout: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def test_monitor_in_chromium(tmp_path, stack_config):
+def test_monitor_in_chromium(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    path, cfg = stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000)
+    path, cfg = write_stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000)
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
     )

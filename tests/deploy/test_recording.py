@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from stack_helpers import write_stack_config
 
 from deploy import messages as m
 from deploy.transport import ZenohConfig, open_session
@@ -31,10 +32,10 @@ TYPES = {
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory, stack_config) -> tuple[dict, Path, list]:
+def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path, list]:
     """One 60-step stack run (robot-io, vision, monitor, learner); returns (config, MCAP path, records)."""
     tmp = tmp_path_factory.mktemp("rec")
-    path, cfg = stack_config(tmp, "rec", vision_rate_hz=5.0, steps=60)
+    path, cfg = write_stack_config(tmp, "rec", vision_rate_hz=5.0, steps=60)
     out = tmp / "summary.json"
     proc = subprocess.run(
         [

@@ -16,6 +16,7 @@ import sys
 
 import numpy as np
 import pytest
+from stack_helpers import write_stack_config
 
 from deploy import recording
 
@@ -24,8 +25,8 @@ SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the f
 
 
 @pytest.mark.e2e
-def test_stack_learns_reach_over_zenoh(tmp_path, stack_config):
-    path, cfg = stack_config(tmp_path, "e2e", vision_rate_hz=10.0, steps=STEPS, checkpoint_every=600)
+def test_stack_learns_reach_over_zenoh(tmp_path):
+    path, cfg = write_stack_config(tmp_path, "e2e", vision_rate_hz=10.0, steps=STEPS, checkpoint_every=600)
     out = tmp_path / "summary.json"
     proc = subprocess.run(
         [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out)],

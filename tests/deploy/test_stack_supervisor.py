@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from stack_helpers import write_stack_config
 
 PARTS = ("robot-io", "vision", "learn", "monitor")
 
@@ -31,8 +32,8 @@ def _parts_of(config: Path) -> dict[str, int]:
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signal is Linux only")
-def test_parts_stop_when_the_supervisor_is_killed(tmp_path, stack_config):
-    path, _ = stack_config(tmp_path, "sup", steps=100000)
+def test_parts_stop_when_the_supervisor_is_killed(tmp_path):
+    path, _ = write_stack_config(tmp_path, "sup", steps=100000)
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)],
         stdout=subprocess.DEVNULL,

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vision.cameras.protocol import CameraError, Frame
-from vision.cameras.sim import SimRGBDCamera
+from vision.cameras.sim import camera_from_config
 from vision.config import Intrinsics, VisionConfig
 
 
@@ -41,7 +41,7 @@ class MirrorSimCamera:
         from sim.panda_scene import PandaScene
 
         self.scene = PandaScene(motion="static", seed=0)
-        self._camera = SimRGBDCamera(self.scene.client_id, config.intrinsics, config.sim_pose(), config.sim)
+        self._camera = camera_from_config(self.scene.client_id, config)
         self.period = 1.0 / config.rate_hz
         self.stale_after_s = float(stale_after_s)
         self._lock = threading.Lock()
