@@ -28,6 +28,8 @@ from robot_io.config import RobotConfig
 from robot_io.ik import DifferentialIK
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
+from loopback import free_port, unique_name  # noqa: E402
 
 
 def pct(xs: list[float]) -> dict[str, float]:
@@ -69,7 +71,7 @@ def main() -> None:
     ik = bench_ik(500 if args.quick else 3000)
     print("IK", ik, flush=True)
 
-    port, name = random.randint(20000, 60000), f"bench{random.randint(0, 10**6)}"
+    port, name = free_port(), unique_name("bench")
     rate = 20.0
     cfg = {
         "name": name,
@@ -114,13 +116,13 @@ def main() -> None:
                 status[s.chunk_seq] = (time.time(), s)
 
     def on_safety(e):
-        if e.kind == "estop":
+        if e.kind == m.SafetyEvent.ESTOP:
             with lock:
                 estops.append((time.time(), e))
 
-    bus.subscribe(m.STATE, m.RobotState, on_state)
-    bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, on_status)
-    bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, on_safety)
+    bus.subscribe(m.STATE, on_state)
+    bus.subscribe(m.CHUNK_STATUS, on_status)
+    bus.subscribe(m.EVENTS_SAFETY, on_safety)
     chunk_pub = bus.publisher(m.CMD_CHUNK)
     control_pub = bus.publisher(m.CONTROL)
     try:
@@ -143,25 +145,19 @@ def main() -> None:
         # Round trip: chunk sent -> first action applied (status stamp) -> status received here.
         rng = random.Random(0)
         sent: dict[int, float] = {}
-        for seq in range(1, n_rt + 1):
+        for _ in range(n_rt):
             time.sleep(rng.uniform(0.055, 0.105))  # random phase against the 50 ms period, one tick apart
-            sent[seq] = time.time()
-            chunk_pub(m.ActionChunk(seq=seq, chunk_seq=seq, actions=[0.0, 0.0, 0.0]))
+            t_sent = time.time()
+            sent[chunk_pub(m.ActionChunk(actions=[0.0, 0.0, 0.0]))] = t_sent
         time.sleep(0.5)
         applied = [status[s][1].stamp - sent[s] for s in sent if s in status]
         round_trip = [status[s][0] - sent[s] for s in sent if s in status]
 
         # E-stop: while moving, estop sent -> safety event received; and -> joint speed below 0.01 rad/s.
         estop_event, estop_still = [], []
-        seq = n_rt + 1
         for i in range(n_estop):
-            seq += 1
             direction = 1.0 if i % 2 == 0 else -1.0
-            chunk_pub(
-                m.ActionChunk(
-                    seq=seq, chunk_seq=seq, actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist()
-                )
-            )
+            chunk_pub(m.ActionChunk(actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist()))
             t_wait = time.monotonic() + 3
             while time.monotonic() < t_wait:
                 with lock:
@@ -172,7 +168,7 @@ def main() -> None:
             with lock:
                 k_events = len(estops)
             t0 = time.time()
-            control_pub(m.Control(command="estop"))
+            control_pub(m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
             t_wait = time.monotonic() + 2
             while time.monotonic() < t_wait:
                 with lock:
@@ -180,14 +176,14 @@ def main() -> None:
                     still = [
                         t
                         for t, s in states
-                        if t > t0 and s.mode == "estop" and max(abs(v) for v in s.dq) < 0.01
+                        if t > t0 and s.mode == m.RobotState.ESTOP and max(abs(v) for v in s.dq) < 0.01
                     ]
                 if ev and still:
                     estop_event.append(ev[0][0] - t0)
                     estop_still.append(still[0] - t0)
                     break
                 time.sleep(0.002)
-            control_pub(m.Control(command="release"))
+            control_pub(m.Control(command=m.Control.RELEASE, jog=[0.0, 0.0, 0.0]))
             time.sleep(0.3)
     finally:
         bus.close()

@@ -17,7 +17,6 @@ import argparse
 import json
 import os
 import platform
-import random
 import subprocess
 import sys
 import tempfile
@@ -33,6 +32,8 @@ from deploy import messages as m
 from deploy.transport import Bus, ZenohConfig, open_session
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
+from loopback import free_endpoint, unique_name  # noqa: E402
 
 
 class Listener:
@@ -43,16 +44,16 @@ class Listener:
         self.lock = threading.Lock()
         self.states: list[tuple[float, int, str]] = []  # (stamp, chunk_seq, mode)
         self.chunks: list[tuple[float, int]] = []  # (stamp, chunk_seq)
-        self.bus.subscribe(m.STATE, m.RobotState, self._state)
-        self.bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._chunk)
+        self.bus.subscribe(m.STATE, self._state)
+        self.bus.subscribe(m.CMD_CHUNK, self._chunk)
 
     def _state(self, s: m.RobotState) -> None:
         with self.lock:
-            self.states.append((s.stamp, s.chunk_seq, s.mode))
+            self.states.append((s.stamp, s.chunk_seq, m.label(s, "mode")))
 
     def _chunk(self, c: m.ActionChunk) -> None:
         with self.lock:
-            self.chunks.append((c.stamp, c.chunk_seq))
+            self.chunks.append((c.stamp, c.seq))
 
 
 def loop_rate(states: list[tuple[float, int, str]], t0: float, t1: float, hz: float) -> dict[str, float]:
@@ -124,8 +125,8 @@ def quarters(eps: list[dict[str, Any]], key: str) -> list[float | None]:
 
 def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
     cfg = json.loads(json.dumps(cfg))
-    cfg["name"] = f"bench{random.randint(0, 10**6)}"
-    cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": f"tcp/127.0.0.1:{random.randint(20000, 60000)}"}
+    cfg["name"] = unique_name("bench")
+    cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
     cfg.pop("vision", None)
     cfg["learner"].update(
         steps=steps, target_topic="sim/target_truth", checkpoint_dir=str(tmp / "l"), checkpoint_every=10**9
@@ -172,7 +173,7 @@ def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
 
 
 def run_in_process(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
-    from deploy.training import TrainSpec, train
+    from experiments.training import TrainSpec, train
 
     lc = cfg["learner"]
     spec = TrainSpec(

@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import platform
-import random
 import subprocess
 import sys
 import tempfile
@@ -34,12 +33,17 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
+
+from loopback import free_port, unique_name  # noqa: E402
 
 from deploy import messages as m  # noqa: E402
+from deploy.config import load_stack_config  # noqa: E402
 from deploy.transport import Bus, ZenohConfig, open_session  # noqa: E402
-from deploy.vision_node import SimFramePublisher, load_settings, load_vision_config  # noqa: E402
+from deploy.vision_node import SimFramePublisher  # noqa: E402
 from sim.panda_scene import PandaScene  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera  # noqa: E402
+from vision.config import VisionConfig  # noqa: E402
 from vision.pipeline import VisionPipeline  # noqa: E402
 
 
@@ -131,13 +135,13 @@ def bench_tracking(vision, seconds: float = 10.0) -> dict:
 
 def bench_latency(config_path: Path, seconds: float) -> dict:
     raw = yaml.safe_load(config_path.read_text())
-    port = random.randint(20000, 60000)
-    raw["name"] = f"bench{random.randint(0, 10**6)}"
+    port = free_port()
+    raw["name"] = unique_name("bench")
     raw["zenoh"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}
     raw["vision"]["camera"] = "frames"  # this process renders and publishes; vision only processes
     tmp = Path(tempfile.mkdtemp(prefix="vision_bench_")) / "config.yaml"
     tmp.write_text(yaml.safe_dump(raw))
-    vision = load_vision_config(raw["vision"])
+    vision = VisionConfig.model_validate(raw["vision"])
     proc = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "vision", "--config", str(tmp), "--log-level", "WARNING"],
         cwd=ROOT,
@@ -155,7 +159,7 @@ def bench_latency(config_path: Path, seconds: float) -> dict:
         with lock:
             received.setdefault(round(t.frame_stamp, 6), now)
 
-    bus.subscribe(m.TARGET, m.Target, on_target)
+    bus.subscribe(m.TARGET, on_target)
     bus.watch_alive(lambda name, up: alive.set() if name == "vision" and up else None)
     scene = PandaScene(motion="slow", seed=1)
     published: dict[float, float] = {}
@@ -214,7 +218,7 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0, help="end-to-end run length")
     ap.add_argument("--out", default=str(ROOT / "results" / "vision_bench.json"))
     args = ap.parse_args()
-    vision = load_settings(args.config).vision
+    vision = load_stack_config(args.config).vision
     scene = PandaScene(motion="slow", seed=0)
     original = os.sched_getaffinity(0)
     cores_available = len(original)

@@ -11,10 +11,12 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import faulthandler  # noqa: E402
 import importlib  # noqa: E402
+import logging  # noqa: E402
 import pkgutil  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 
+from common.config import ConfigError  # noqa: E402
 from deploy import commands  # noqa: E402
 from deploy.commands import die_with_supervisor  # noqa: E402
 
@@ -47,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except ConfigError as exc:  # every command loads its config the same way; say what is wrong, once
+        logging.error("%s", exc)
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -14,112 +14,52 @@ import json
 import logging
 import threading
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import build, load_yaml, robot_name
-from deploy.training import summarize
-from deploy.transport import Bus, ZenohConfig, open_session
+from deploy.config import StackConfig
+from deploy.node import Node
 from deploy.zenoh_env import EnvSettings, EnvStopped, ZenohReachEnv, extrapolate
 from learner.protocol import Agent, RunLog
-from learner.registry import ALGOS, make_agent
+from learner.registry import make_agent
+from learner.run_summary import summarize
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
 
 
-@dataclass(frozen=True)
-class LearnerConfig:
-    """The ``learner:`` section."""
-
-    algo: str = "adaptiveh"
-    steps: int = 4000
-    seed: int = 0
-    agent: dict[str, Any] = field(default_factory=dict)
-    chunk_len: int = 10
-    # The chunk's tail after this step's action, played if the learner is late for a tick: ``hold``
-    # (zero displacements) or ``policy`` (AdaptiveH's mean rolled forward). Measured: with ``policy`` a
-    # late learner's transitions mix in planned actions and NS Reach did not learn over Zenoh in 2400
-    # steps; with ``hold`` a late tick only costs time.
-    plan: str = "hold"
-    max_episode_steps: int = 200
-    target_topic: str = m.TARGET
-    # Where the target moves and how fast: the learner scales its state with these, so they must match
-    # the real target's range (NSReach-v0 scales with its motion preset's box and speed). Measured: with
-    # the workspace as the box and 0.2 m/s, in-process NS Reach seed 0 stopped learning (0 % vs 90 %).
-    target_box: tuple[tuple[float, float, float], tuple[float, float, float]] = (
-        (0.35, -0.3, 0.12),
-        (0.65, 0.3, 0.45),
-    )
-    target_speed_max: float = 0.06
-    step_timeout_s: float = 2.0
-    checkpoint_dir: str = "runs/stack/learner"
-    checkpoint_every: int = 500
-
-    def __post_init__(self) -> None:
-        if self.algo not in ALGOS:
-            raise ValueError(f"algo: unknown {self.algo!r}; choose one of {list(ALGOS)}")
-        for name in ("steps", "chunk_len", "max_episode_steps", "checkpoint_every"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be an integer >= 1, got {getattr(self, name)!r}")
-        if self.plan not in ("hold", "policy"):
-            raise ValueError(f"plan: must be hold or policy, got {self.plan!r}")
-        if not isinstance(self.agent, dict):
-            raise ValueError("agent: must be a mapping of hyperparameters")
-        lo, hi = (np.asarray(b, float) for b in self.target_box)
-        if lo.shape != (3,) or hi.shape != (3,) or np.any(lo >= hi):
-            raise ValueError(
-                f"target_box: must be [[x, y, z] lo, [x, y, z] hi] with lo < hi, got {self.target_box}"
-            )
-        if not self.target_speed_max > 0:
-            raise ValueError(f"target_speed_max: must be > 0, got {self.target_speed_max}")
-
-
-@dataclass(frozen=True)
-class LearnerSettings:
-    name: str
-    zenoh: ZenohConfig
-    learner: LearnerConfig
-    env: EnvSettings
-
-
-def load_settings(path: str | Path, overrides: dict[str, Any] | None = None) -> LearnerSettings:
-    """Read ``name``, ``zenoh``, ``learner`` and the robot's workspace/rate/step from a top-level config."""
-    data = load_yaml(path)
-    name = robot_name(data, path)
-    section = {**(data.get("learner") or {}), **{k: v for k, v in (overrides or {}).items() if v is not None}}
-    lc = build(LearnerConfig, section, f"{path}: learner")
-    robot = data.get("robot") or {}
-    ws = robot.get("workspace") or {}
-    env = EnvSettings(
-        workspace_lo=tuple(ws.get("lo", EnvSettings.workspace_lo)),
-        workspace_hi=tuple(ws.get("hi", EnvSettings.workspace_hi)),
-        max_step_m=float(robot.get("max_step_m", EnvSettings.max_step_m)),
-        control_rate_hz=float(robot.get("control_rate_hz", EnvSettings.control_rate_hz)),
+def env_settings(cfg: StackConfig) -> EnvSettings:
+    """The reach env over Zenoh: the robot's workspace, step and rate, and the learner's task settings."""
+    lc = cfg.learner
+    return EnvSettings(
+        workspace_lo=cfg.robot.workspace.lo,
+        workspace_hi=cfg.robot.workspace.hi,
+        max_step_m=cfg.robot.max_step_m,
+        control_rate_hz=cfg.robot.control_rate_hz,
         max_episode_steps=lc.max_episode_steps,
         chunk_len=lc.chunk_len,
         target_topic=lc.target_topic,
-        target_lo=tuple(lc.target_box[0]),
-        target_hi=tuple(lc.target_box[1]),
+        target_lo=lc.target_box[0],
+        target_hi=lc.target_box[1],
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
     )
-    return LearnerSettings(name, build(ZenohConfig, data.get("zenoh"), "zenoh"), lc, env)
 
 
-class LearnerNode:
-    """``run()`` learns until ``steps`` are done or ``request_stop()``; returns the summary."""
+class LearnerNode(Node):
+    """``run()`` learns (on the caller's thread) until ``steps`` are done or ``request_stop()``."""
 
-    def __init__(self, settings: LearnerSettings, control_token: str = "") -> None:
+    alive_as = "learner"
+
+    def __init__(self, settings: StackConfig, control_token: str = "") -> None:
         self.settings = settings
         self.cfg = settings.learner
         self.control_token = control_token
-        self.bus = Bus(open_session(settings.zenoh), settings.name)
-        self.env = ZenohReachEnv(self.bus, settings.env)
+        super().__init__(settings.name, settings.zenoh)
+        self.env = ZenohReachEnv(self.bus, env_settings(settings))
         self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, self.cfg.agent)
         if self.cfg.plan == "policy" and hasattr(self.agent, "step_env"):
             self.env.planner = self._plan
@@ -132,21 +72,19 @@ class LearnerNode:
         self._pub_retreat = self.bus.publisher(m.EVENTS_RETREAT)
         self._pub_tel = self.bus.publisher(m.TELEMETRY_LEARNER)
         self._paused = threading.Event()
-        self._stop = threading.Event()
-        self._seq = 0
         self._episodes_seen = len(self.agent.log.episodes)
         self._segments_seen = len(self.agent.log.segments)
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
         self._retreat_chunks: set[int] = set()
         self.env.on_status = self._on_status
-        self.bus.subscribe(m.CONTROL, m.Control, self._on_control)
-        self.bus.declare_alive("learner")
+        self.bus.subscribe(m.CONTROL, self._on_control)
+        self.declare_alive()
 
     # -- plan and accounting -------------------------------------------------------------------------
     def _plan(self, obs: np.ndarray, action: np.ndarray, n: int) -> np.ndarray:
         """The policy mean on observations extrapolated from ``obs`` after ``action``."""
-        dt = 1.0 / self.settings.env.control_rate_hz
+        dt = self.settings.robot.period
         out, o, a = [], np.asarray(obs, float), np.asarray(action, float)
         for _ in range(n):
             o = extrapolate(o, a, dt)
@@ -160,27 +98,23 @@ class LearnerNode:
             self.retreat_dropped += msg.dropped
 
     def _on_control(self, msg: m.Control) -> None:
-        if msg.command not in ("pause", "resume"):
+        command = m.label(msg, "command")
+        if command not in ("pause", "resume"):
             return
         if self.control_token and msg.token != self.control_token:
-            log.warning("control %s with a wrong token ignored", msg.command)
+            log.warning("control %s with a wrong token ignored", command)
             return
-        if msg.command == "pause":
+        if command == "pause":
             self._paused.set()
         else:
             self._paused.clear()
         self._telemetry()
-
-    def _next(self) -> int:
-        self._seq += 1
-        return self._seq
 
     def _telemetry(self) -> None:
         eps = self.agent.log.episodes
         last = eps[-1] if eps else None
         self._pub_tel(
             m.LearnerTelemetry(
-                seq=self._next(),
                 global_step=self.agent.log.global_step,
                 episode=len(eps),
                 episode_return=float(last.ret) if last else 0.0,
@@ -195,10 +129,9 @@ class LearnerNode:
         for rec in lg.segments[self._segments_seen :]:
             self._pub_retreat(
                 m.RetreatEvent(
-                    seq=self._next(),
                     segment=rec.index,
                     H=rec.H,
-                    reason=rec.reason,
+                    reason=m.enum(m.RetreatEvent, "reason", rec.reason),
                     statistic=[x if np.isfinite(x) else 0.0 for x in rec.statistic],
                     threshold=float(rec.threshold),
                     global_step=rec.global_step,
@@ -218,9 +151,9 @@ class LearnerNode:
 
     def _gate(self) -> bool:
         """Block while paused; False when stopping."""
-        while self._paused.is_set() and not self._stop.is_set():
+        while self._paused.is_set() and not self.stopping:
             time.sleep(0.05)
-        return not self._stop.is_set()
+        return not self.stopping
 
     # -- run -----------------------------------------------------------------------------------------
     def save(self) -> None:
@@ -256,7 +189,7 @@ class LearnerNode:
     def result(self, wall: float, steps: int) -> dict[str, Any]:
         out = {
             "algo": self.cfg.algo,
-            "config": asdict(self.cfg),
+            "config": self.cfg.model_dump(),
             "summary": summarize(self.agent.log),
             "resumed_from": self.resumed_from,
             "steps_this_session": steps,
@@ -272,9 +205,5 @@ class LearnerNode:
         path.write_text(json.dumps(out, indent=1, default=float))
         return out
 
-    def request_stop(self) -> None:
-        self._stop.set()
-        self.env.stop.set()
-
-    def close(self) -> None:
-        self.bus.close()
+    def wake(self) -> None:
+        self.env.stop.set()  # a step or reset blocked on a held robot returns at once

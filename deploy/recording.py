@@ -1,9 +1,11 @@
 """Recording every Zenoh message of a robot to MCAP, and replaying a recording back onto Zenoh.
 
-One MCAP channel per key expression (``adaptiveh/<robot>/<topic>``), message encoding ``msgpack``, one
-schema per message type (named after it, empty schema data: msgpack is self-describing and the types
-live in ``deploy.messages``). Foxglove opens the file; ``adaptiveh replay`` republishes it with the
-original timing so the monitor shows a past run.
+One MCAP channel per key expression (``adaptiveh/<robot>/<topic>``), message encoding ``protobuf``,
+one schema per message type: its full name (``adaptiveh.RobotState``) and the ``FileDescriptorSet`` of
+``adaptiveh.proto``, so any MCAP reader decodes the file with the schema alone (Foxglove does).
+Bytes that do not decode as their key's type are kept too, wrapped in an ``adaptiveh.Rejected`` on the
+channel ``_rejected/<key>``: nothing seen on the bus is lost. ``adaptiveh replay`` republishes the
+valid channels with the original timing.
 """
 
 from __future__ import annotations
@@ -14,23 +16,38 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import msgpack
 import zenoh
+from google.protobuf import descriptor_pb2
+from google.protobuf.descriptor import FileDescriptor
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from deploy.messages import NAMESPACE
+from deploy import messages as m
 
 log = logging.getLogger(__name__)
+NAMESPACE = m.NAMESPACE
+REJECTED = "_rejected/"
 
 
-def message_type(data: bytes) -> str:
-    """The ``_t`` tag of an encoded message, or ``unknown`` (bad bytes are recorded too)."""
-    try:
-        payload = msgpack.unpackb(data, raw=False)
-        return str(payload.get("_t", "unknown")) if isinstance(payload, dict) else "unknown"
-    except Exception:  # msgpack raises several unrelated types on garbage
-        return "unknown"
+class RecordingError(ValueError):
+    """A file that is not a recording this build can read."""
+
+
+def file_descriptor_set(msg_type: type[m.Message]) -> bytes:
+    """The serialized ``FileDescriptorSet`` of ``msg_type``'s file and everything it imports."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: FileDescriptor) -> None:
+        if fd.name in seen:
+            return
+        for dep in fd.dependencies:
+            add(dep)
+        seen.add(fd.name)
+        fd.CopyToProto(fds.file.add())
+
+    add(msg_type.DESCRIPTOR.file)
+    return fds.SerializeToString()
 
 
 class Recorder:
@@ -60,16 +77,34 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            channel = self._channels.get(key)
-            if channel is None:
-                name = message_type(data)
-                schema = self._schemas.get(name)
-                if schema is None:
-                    schema = self._schemas[name] = self._writer.register_schema(name, "", b"")
-                channel = self._channels[key] = self._writer.register_channel(key, "msgpack", schema)
+            key, data = self._checked(key, data)
+            channel = self._channel(key, m.Rejected if key.startswith(REJECTED) else m.topic_of_key(key).type)
             self._seq[key] = self._seq.get(key, 0) + 1
             self._writer.add_message(channel, now, data, now, self._seq[key])
             self.count += 1
+
+    @staticmethod
+    def _checked(key: str, data: bytes) -> tuple[str, bytes]:
+        """(key, data) for a valid message; (``_rejected/<key>``, a Rejected wrapping it) otherwise."""
+        topic = m.topic_of_key(key)
+        try:
+            if topic is None:
+                raise m.MessageError(f"{key}: not a topic of the schema")
+            topic.decode(data)
+            return key, data
+        except m.MessageError as exc:
+            return REJECTED + key, m.Rejected(key=key, error=str(exc), data=data).SerializeToString()
+
+    def _channel(self, key: str, msg_type: type[m.Message]) -> int:
+        channel = self._channels.get(key)
+        if channel is None:
+            name = msg_type.DESCRIPTOR.full_name
+            schema = self._schemas.get(name)
+            if schema is None:
+                schema = self._writer.register_schema(name, "protobuf", file_descriptor_set(msg_type))
+                self._schemas[name] = schema
+            channel = self._channels[key] = self._writer.register_channel(key, "protobuf", schema)
+        return channel
 
     def close(self) -> None:
         try:
@@ -84,10 +119,19 @@ class Recorder:
 
 
 def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
-    """All messages of a recording as (key, schema name, log_time ns, payload), in time order."""
+    """All messages of a recording as (key, schema name, log_time ns, payload), in time order.
+
+    Recordings made before the protobuf schema (msgpack channels) are refused with a RecordingError.
+    """
     out = []
     with open(path, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+            if channel.message_encoding != "protobuf":
+                raise RecordingError(
+                    f"{path}: channel {channel.topic} is encoded as {channel.message_encoding!r}; this "
+                    "build reads protobuf recordings only (msgpack ones come from adaptiveh before the "
+                    "protobuf schema; replay them with that version)"
+                )
             out.append((channel.topic, schema.name if schema else "", message.log_time, message.data))
     return out
 
@@ -115,7 +159,7 @@ def replay(
     recorded name. ``wait_subscribers_s``: wait up to this long for a subscriber to match before the
     first message, so a subscriber elsewhere on the bus does not miss the start while peers connect.
     """
-    records = read(path)
+    records = [r for r in read(path) if not r[0].startswith(REJECTED)]  # rejected bytes stay in the file
     if not records:
         return 0
 

@@ -12,61 +12,40 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable
 
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import build, load_yaml, robot_name
-from deploy.transport import Bus, ZenohConfig, open_session
-from robot_io.config import RobotConfig
+from deploy.config import StackConfig
+from deploy.node import Node
 from robot_io.controller import ArmState, RobotController, TickResult
 
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class RobotIOSettings:
-    name: str
-    zenoh: ZenohConfig
-    robot: RobotConfig
-
-
-def load_settings(path: str | Path) -> RobotIOSettings:
-    """Read ``name``, ``zenoh`` and ``robot`` from a top-level config (other sections are others')."""
-    data = load_yaml(path)
-    name = robot_name(data, path)
-    return RobotIOSettings(
-        name=name,
-        zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
-        robot=build(RobotConfig, data.get("robot"), "robot"),
-    )
-
-
-def state_message(result: TickResult, seq: int) -> m.RobotState:
-    return robot_state_message(result.state, seq)
-
-
-def robot_state_message(s: ArmState, seq: int) -> m.RobotState:
+def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
+    """The state message of ``s``; a publisher stamps it when it is put, a reset reply with ``stamp``."""
     return m.RobotState(
-        seq=seq,
+        stamp=stamp,
         q=s.q.tolist(),
         dq=s.dq.tolist(),
         ee_pos=s.ee_pos.tolist(),
         ee_vel=s.ee_vel.tolist(),
-        mode=s.mode,
+        mode=m.enum(m.RobotState, "mode", s.mode),
         chunk_seq=s.chunk_seq,
         queue_len=s.queue_len,
     )
 
 
-class RobotIONode:
-    """Run with ``start()``/``stop()`` (or as a context manager); ``run()`` blocks until stopped."""
+class RobotIONode(Node):
+    """Run with ``start()``/``stop()`` (or as a context manager); the control loop is its one worker."""
+
+    alive_as = "robot_io"
 
     def __init__(
         self,
-        settings: RobotIOSettings,
+        settings: StackConfig,
         controller: RobotController | None = None,
         watch_peers: tuple[str, ...] = ("learner",),
         control_token: str = "",
@@ -76,23 +55,20 @@ class RobotIONode:
         self.period = settings.robot.period
         self.watch_peers = watch_peers
         self.control_token = control_token
-        self.bus = Bus(open_session(settings.zenoh), settings.name)
+        super().__init__(settings.name, settings.zenoh)
         self._pub_state = self.bus.publisher(m.STATE)
         self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
         self._pub_truth = self.bus.publisher(m.TARGET_TRUTH) if self.scene is not None else None
-        self._seq = {"state": 0, "status": 0, "safety": 0, "truth": 0}
         self._wake = threading.Event()
-        self._stop = threading.Event()
         self._resets: list[tuple[int, threading.Event, list[m.ResetReply]]] = []
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
         self.ticks = 0
-        self.bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._on_chunk, on_bad=self._on_bad)
-        self.bus.subscribe(m.CONTROL, m.Control, self._on_control, on_bad=self._on_bad)
-        self.bus.queryable(m.RESET, m.ResetRequest, self._on_reset)
+        self.bus.subscribe(m.CMD_CHUNK, self._on_chunk, on_bad=self._on_bad)
+        self.bus.subscribe(m.CONTROL, self._on_control, on_bad=self._on_bad)
+        self.bus.queryable(m.RESET, self._on_reset)
         self.bus.watch_alive(self._on_alive)
-        self.bus.declare_alive("robot_io")
+        self.declare_alive()
 
     @property
     def scene(self):
@@ -105,31 +81,27 @@ class RobotIONode:
 
     def _on_chunk(self, msg: m.ActionChunk) -> None:
         try:
-            actions = msg.action_array()
+            actions = m.action_array(msg)
         except m.MessageError as exc:
-            self._on_bad(m.CMD_CHUNK, exc)
+            self._on_bad(m.CMD_CHUNK.name, exc)
             return
-        if not self.controller.push_chunk(msg.chunk_seq, actions, time.monotonic()):
+        if not self.controller.push_chunk(msg.seq, actions, time.monotonic()):
             mode = self.controller.safety.mode
             detail = (
                 f"refused in mode {mode}"
                 if mode in ("estop", "paused")
                 else "not newer than the current chunk"
             )
-            log.info("chunk %d %s", msg.chunk_seq, detail)
-            self._publish_status(
-                m.ChunkStatus(chunk_seq=msg.chunk_seq, executed=0, dropped=len(actions), done=True)
-            )
+            log.info("chunk %d %s", msg.seq, detail)
+            self._pub_status(m.ChunkStatus(chunk_seq=msg.seq, executed=0, dropped=len(actions), done=True))
 
     def _on_control(self, msg: m.Control) -> None:
-        if msg.command not in m.Control.COMMANDS:
-            self._on_bad(m.CONTROL, m.MessageError(f"unknown command {msg.command!r}"))
-            return
+        command = m.label(msg, "command")
         # An e-stop is always obeyed; everything else needs the operator token when one is set.
-        if msg.command != "estop" and self.control_token and msg.token != self.control_token:
-            self._on_bad(m.CONTROL, m.MessageError(f"{msg.command}: wrong operator token"))
+        if command != "estop" and self.control_token and msg.token != self.control_token:
+            self._on_bad(m.CONTROL.name, m.MessageError(f"{command}: wrong operator token"))
             return
-        self.controller.operator(msg.command, np.asarray(msg.jog))
+        self.controller.operator(command, np.asarray(msg.jog))
         self._wake.set()
 
     def _on_alive(self, name: str, alive: bool) -> None:
@@ -151,32 +123,15 @@ class RobotIONode:
         return box[0]
 
     # -- publishing ----------------------------------------------------------------------------------
-    def _next(self, name: str) -> int:
-        with self._lock:
-            self._seq[name] += 1
-            return self._seq[name]
-
-    def _publish_status(self, status: m.ChunkStatus) -> None:
-        self._pub_status(
-            m.ChunkStatus(
-                seq=self._next("status"),
-                chunk_seq=status.chunk_seq,
-                executed=status.executed,
-                dropped=status.dropped,
-                preempted_by=status.preempted_by,
-                done=status.done,
-            )
-        )
-
     def _publish_safety(self, kind: str, detail: str, held: bool) -> None:
-        self._pub_safety(m.SafetyEvent(seq=self._next("safety"), kind=kind, detail=detail, held=held))
+        self._pub_safety(m.SafetyEvent(kind=m.enum(m.SafetyEvent, "kind", kind), detail=detail, held=held))
 
     def _publish(self, result: TickResult) -> None:
         for record in result.events:
             log.info("safety %s: %s", record.kind, record.detail)
             self._publish_safety(record.kind, record.detail, record.held)
         for report in result.reports:
-            self._publish_status(
+            self._pub_status(
                 m.ChunkStatus(
                     chunk_seq=report.chunk_seq,
                     executed=report.executed,
@@ -185,15 +140,16 @@ class RobotIONode:
                     done=report.done,
                 )
             )
-        self._pub_state(state_message(result, self._next("state")))
+        self._pub_state(robot_state_message(result.state))
         if self._pub_truth is not None:
             scene = self.scene
             self._pub_truth(
                 m.Target(
-                    seq=self._next("truth"),
                     position=scene.target.position.tolist(),
                     velocity=scene.target_velocity().tolist(),
+                    covariance=[0.0] * 9,  # the truth: no uncertainty
                     valid=True,
+                    status=m.Target.TRACKING,
                     frame_stamp=time.time(),  # when observed, on the wall clock like a camera frame's
                 )
             )
@@ -205,20 +161,27 @@ class RobotIONode:
         for seed, done, box in resets:
             try:
                 state = self.controller.reset(seed if seed >= 0 else None)  # -1: keep the target's motion
-                reply = m.ResetReply(ok=True, state=self._snapshot(state).encode())
+                reply = m.ResetReply(ok=True, state=robot_state_message(state, time.time()))
             except Exception as exc:
                 log.exception("reset failed")
                 reply = m.ResetReply(ok=False, detail=f"{type(exc).__name__}: {exc}")
             box.append(reply)
             done.set()
 
-    def _snapshot(self, state: ArmState) -> m.RobotState:
-        return robot_state_message(state, self._next("state"))
+    def workers(self) -> dict[str, Callable[[], None]]:
+        return {"robot-io": self.run}
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def close(self) -> None:
+        super().close()
+        self.controller.close()
 
     def run(self) -> None:
-        """Tick at the control rate until ``stop()``; between ticks serve resets and e-stops at once."""
+        """Tick at the control rate until stopped; between ticks serve resets and e-stops at once."""
         next_tick = time.monotonic()
-        while not self._stop.is_set():
+        while not self.stopping:
             now = time.monotonic()
             if now >= next_tick:
                 self._publish(self.controller.tick(now))
@@ -233,30 +196,3 @@ class RobotIONode:
                 result = self.controller.react(time.monotonic())
                 if result.events or result.reports:
                     self._publish(result)
-
-    def request_stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """True once stopping was requested (within ``timeout``)."""
-        return self._stop.wait(timeout)
-
-    def start(self) -> RobotIONode:
-        self._thread = threading.Thread(target=self.run, name="robot-io", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self.bus.close()
-        self.controller.close()
-
-    def __enter__(self) -> RobotIONode:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

@@ -9,7 +9,6 @@ learner's ``result.json`` with what the supervisor saw on the bus (retreats, saf
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 import json
 import logging
@@ -21,7 +20,6 @@ import sys
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,59 +28,27 @@ import zenoh
 
 from deploy import messages as m
 from deploy.commands import SUPERVISOR_ENV
-from deploy.config import ConfigError, build, load_yaml
+from deploy.config import ConfigError, load_stack_config
 from deploy.recording import Recorder
-from deploy.transport import Bus, ZenohConfig, open_session
+from deploy.transport import Bus, open_session
+from learner.run_summary import h_stats
 
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
-class RecordingConfig:
-    """The ``recording:`` section: where MCAP files go and which topics are left out (raw frames)."""
-
-    enabled: bool = True
-    dir: str = "runs/stack/recordings"
-    exclude: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "exclude", tuple(self.exclude))
-
-
 def check(config: str | Path) -> tuple[bool, list[str]]:
     """Validate every section and look for the drivers the config needs; moves nothing."""
-    lines, ok = [], True
     try:
-        data = load_yaml(config)
-        from deploy.learner_node import load_settings as learner_settings
-        from deploy.robot_io_node import load_settings as robot_settings
-
-        robot = robot_settings(config)
-        learner_settings(config)
-        lines.append(f"config {config}: robot, zenoh and learner sections valid")
+        cfg = load_stack_config(config)
     except ConfigError as exc:
         return False, [f"config error: {exc}"]
+    camera = f"vision camera {cfg.vision.camera}" if cfg.vision is not None else "no vision"
+    lines, ok = [f"config {config}: every section valid (robot backend {cfg.robot.backend}, {camera})"], True
     needs: list[tuple[str, str]] = []
-    if robot.robot.backend == "franka":
+    if cfg.robot.backend == "franka":
         needs.append(("pylibfranka", "robot backend franka: pip install adaptiveh[franka] (pylibfranka)"))
-    vision = data.get("vision") or {}
-    if vision:
-        try:
-            from deploy.vision_node import load_vision_config
-
-            vcfg = load_vision_config(vision)
-            lines.append(f"vision section valid (camera {vcfg.camera})")
-            if vcfg.camera == "realsense":
-                needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
-            if vcfg.camera == "sim" and robot.robot.backend != "pybullet":
-                ok = False
-                lines.append(
-                    "config error: vision camera sim renders the simulated world, which only the "
-                    f"pybullet backend publishes (robot backend is {robot.robot.backend}): use realsense"
-                )
-        except ConfigError as exc:
-            ok = False
-            lines.append(f"config error: {exc}")
+    if cfg.vision is not None and cfg.vision.camera == "realsense":
+        needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
     for module, why in needs:
         if importlib.util.find_spec(module) is None:
             ok = False
@@ -106,16 +72,14 @@ class Stack:
         python: str = sys.executable,
     ) -> None:
         self.config = str(config)
-        data = load_yaml(config)
-        self.data = data
-        self.name = data.get("name", "panda")
+        self.cfg = load_stack_config(config)
+        self.name = self.cfg.name
         self.token = token or secrets.token_urlsafe(12)
         self.steps = steps
         self.progress = progress
         self.python = python
-        self.recording = build(RecordingConfig, data.get("recording"), f"{config}: recording")
-        lc = data.get("learner") or {}
-        self.learner_dir = Path(lc.get("checkpoint_dir", "runs/stack/learner"))
+        self.recording = self.cfg.recording
+        self.learner_dir = Path(self.cfg.learner.checkpoint_dir)
         self.run_dir = Path(run_dir) if run_dir else self.learner_dir.parent
         self.procs: dict[str, subprocess.Popen] = {}
         self._stop = threading.Event()
@@ -151,11 +115,11 @@ class Stack:
             time.sleep(0.2)
 
     def run(self) -> dict[str, Any]:
-        zc = build(ZenohConfig, self.data.get("zenoh"), "zenoh")
+        zc = self.cfg.zenoh
         if not (zc.connect or zc.listen) and zc.mode == "peer":
             # The supervisor owns the loopback hub; the parts join through it and gossip makes a full mesh
             # of peers (deploy.transport). A hub already taken means another stack is running here.
-            zc = dataclasses.replace(zc, listen=(zc.hub,))
+            zc = zc.model_copy(update={"listen": (zc.hub,)})
         try:
             session = open_session(zc)
         except zenoh.ZError as exc:
@@ -170,15 +134,15 @@ class Stack:
                 Path(self.recording.dir) / f"{self.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
             )
             recorder = Recorder(bus.session, self.name, self.recording_path, self.recording.exclude)
-        bus.subscribe(m.EVENTS_RETREAT, m.RetreatEvent, self.retreats.append)
-        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self.safety.append)
-        bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self.telemetry.append)
+        bus.subscribe(m.EVENTS_RETREAT, self.retreats.append)
+        bus.subscribe(m.EVENTS_SAFETY, self.safety.append)
+        bus.subscribe(m.TELEMETRY_LEARNER, self.telemetry.append)
         t0 = time.monotonic()
         try:
             self._spawn("robot_io", self._cmd("robot-io", f"--token={self.token}", "--log-level", "WARNING"))
-            if self.data.get("vision"):
+            if self.cfg.vision is not None:
                 self._spawn("vision", self._cmd("vision", "--log-level", "WARNING"))
-            if self.data.get("monitor") is not None:
+            if self.cfg.monitor is not None:
                 self._spawn(
                     "monitor", self._cmd("monitor", f"--token={self.token}", "--log-level", "WARNING")
                 )
@@ -209,7 +173,7 @@ class Stack:
 
     def _progress_line(self, elapsed: float) -> str:
         tel = self.telemetry[-1] if self.telemetry else None
-        retreats = sum(e.reason == "retreat" for e in self.retreats)
+        retreats = sum(e.reason == m.RetreatEvent.RETREAT for e in self.retreats)
         if tel is None:
             return f"[{elapsed:5.0f} s] waiting for the first episode; segments {len(self.retreats)}"
         return (
@@ -248,19 +212,12 @@ class Stack:
             "success_rate_by_quarter": quarters if len(succ) >= 4 else None,
             "success_rate": float(np.mean(succ)) if succ else None,
             "segments": len(self.retreats),
-            "reasons": dict(Counter(e.reason for e in self.retreats)),
-            "H": {
-                "mean": float(np.mean(H)),
-                "p10": float(np.percentile(H, 10)),
-                "median": float(np.median(H)),
-                "p90": float(np.percentile(H, 90)),
-            }
-            if H
-            else None,
+            "reasons": dict(Counter(m.label(e, "reason") for e in self.retreats)),
+            "H": h_stats(H) if H else None,
             "dropped_actions": result.get("dropped_actions"),
             "retreat_preemptions": result.get("retreat_preemptions"),
             "retreat_dropped": result.get("retreat_dropped"),
-            "safety_events": dict(Counter(e.kind for e in self.safety)),
+            "safety_events": dict(Counter(m.label(e, "kind") for e in self.safety)),
             "recording": str(self.recording_path) if self.recording_path else None,
             "learner_result": str(result_path),
             "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},

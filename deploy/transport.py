@@ -11,47 +11,35 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import zenoh
+from pydantic import Field
 
+from common.config import Section
 from deploy import messages
-from deploy.messages import Message, MessageError
+from deploy.messages import Message, MessageError, Service, Topic
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
-MODES = ("peer", "client", "router")
+R = TypeVar("R", bound=Message)
 
 
-@dataclass(frozen=True)
-class ZenohConfig:
+Endpoint = Annotated[str, Field(pattern=r"^[a-z][a-z0-9-]*/.+")]
+"""A Zenoh locator such as ``tcp/127.0.0.1:7447``."""
+
+
+class ZenohConfig(Section):
     """The ``zenoh:`` section."""
 
-    mode: str = "peer"
-    connect: tuple[str, ...] = ()
-    listen: tuple[str, ...] = ()
-    hub: str = "tcp/127.0.0.1:7447"  # loopback rendezvous when connect and listen are both empty
+    mode: Literal["peer", "client", "router"] = "peer"
+    connect: tuple[Endpoint, ...] = ()
+    listen: tuple[Endpoint, ...] = ()
+    hub: Endpoint = "tcp/127.0.0.1:7447"  # loopback rendezvous when connect and listen are both empty
     multicast_scouting: bool = False
-    options: dict[str, Any] = field(
-        default_factory=dict
-    )  # extra Zenoh config keys, e.g. {"transport/...": v}
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
-        for name in ("connect", "listen"):
-            value = getattr(self, name)
-            if isinstance(value, str) or not all(isinstance(e, str) and "/" in e for e in value):
-                raise ValueError(
-                    f"{name} must be a list of endpoints like 'tcp/127.0.0.1:7447', got {value!r}"
-                )
-            object.__setattr__(self, name, tuple(value))
-        if not isinstance(self.hub, str) or "/" not in self.hub:
-            raise ValueError(f"hub must be an endpoint like 'tcp/127.0.0.1:7447', got {self.hub!r}")
-        if not isinstance(self.options, dict):
-            raise ValueError("options must be a mapping of Zenoh config keys to values")
+    options: dict[str, Any] = {}  # extra Zenoh config keys, e.g. {"transport/...": v}
 
 
 def _config(cfg: ZenohConfig, connect: list[str], listen: list[str]) -> zenoh.Config:
@@ -92,6 +80,32 @@ def open_session(cfg: ZenohConfig) -> zenoh.Session:
         return zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)]))
 
 
+class Publisher(Generic[M]):
+    """Puts messages of one topic, stamping ``seq`` (1, 2, … or from ``first_seq``) and ``stamp``.
+
+    The stamp is the wall clock when the message is put; the returned ``seq`` names the message (a
+    chunk's seq is how the robot reports on it).
+    """
+
+    def __init__(self, pub: zenoh.Publisher, topic: Topic[M], first_seq: int = 1) -> None:
+        self._pub = pub
+        self.topic = topic
+        self._seq = first_seq - 1
+        self._lock = threading.Lock()
+
+    def put(self, msg: M) -> int:
+        if not isinstance(msg, self.topic.type):
+            raise TypeError(f"{self.topic.name} carries {self.topic.type.__name__}, not {type(msg).__name__}")
+        with self._lock:
+            self._seq += 1
+            msg.seq = self._seq
+            msg.stamp = time.time()
+            self._pub.put(msg.SerializeToString())
+            return self._seq
+
+    __call__ = put
+
+
 class Bus:
     """Typed access to ``adaptiveh/<robot>/…`` on one session. Counts bad messages per topic."""
 
@@ -102,36 +116,35 @@ class Bus:
         self._lock = threading.Lock()
         self._declared: list[Any] = []
 
-    def key(self, topic: str) -> str:
-        return messages.key(self.robot, topic)
+    def key(self, topic: Topic[Any] | Service[Any, Any] | str) -> str:
+        return messages.key(self.robot, topic if isinstance(topic, str) else topic.name)
 
-    def _bad(self, topic: str, exc: Exception) -> None:
+    def _bad(self, name: str, exc: Exception) -> None:
         with self._lock:
-            self.bad_messages[topic] = self.bad_messages.get(topic, 0) + 1
-        log.warning("bad message on %s: %s", self.key(topic), exc)
+            self.bad_messages[name] = self.bad_messages.get(name, 0) + 1
+        log.warning("bad message on %s: %s", self.key(name), exc)
 
-    def publisher(self, topic: str, express: bool = True) -> Callable[[Message], None]:
-        """A function that encodes and publishes a message on ``topic``."""
+    def publisher(self, topic: Topic[M], express: bool = True, first_seq: int = 1) -> Publisher[M]:
+        """A publisher of ``topic``'s type on its key."""
         pub = self.session.declare_publisher(self.key(topic), express=express)
         self._declared.append(pub)
-        return lambda msg: pub.put(msg.encode())
+        return Publisher(pub, topic, first_seq)
 
     def subscribe(
         self,
-        topic: str,
-        cls: type[M],
+        topic: Topic[M],
         callback: Callable[[M], None],
         on_bad: Callable[[str, Exception], None] | None = None,
     ) -> None:
-        """Call ``callback`` with each decoded ``cls`` message; bad bytes are logged, counted, reported."""
+        """Call ``callback`` with each decoded message; bad bytes are logged, counted and reported."""
 
         def handler(sample: zenoh.Sample) -> None:
             try:
-                msg = messages.decode(sample.payload.to_bytes(), cls)
+                msg = topic.decode(sample.payload.to_bytes())
             except MessageError as exc:
-                self._bad(topic, exc)
+                self._bad(topic.name, exc)
                 if on_bad is not None:
-                    on_bad(topic, exc)
+                    on_bad(topic.name, exc)
                 return
             try:
                 callback(msg)
@@ -140,34 +153,38 @@ class Bus:
 
         self._declared.append(self.session.declare_subscriber(self.key(topic), handler))
 
-    def queryable(self, topic: str, cls: type[M], handler: Callable[[M], Message]) -> None:
-        """Answer queries on ``topic``: the payload decodes to ``cls``, the reply is ``handler``'s message."""
+    def queryable(self, service: Service[M, R], handler: Callable[[M], R]) -> None:
+        """Answer queries: the payload decodes to the request type, the reply is ``handler``'s."""
 
         def on_query(query: zenoh.Query) -> None:
             try:
-                payload = query.payload.to_bytes() if query.payload is not None else cls().encode()
-                request = messages.decode(payload, cls)
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                request = messages.decode(payload, service.request)
             except MessageError as exc:
-                self._bad(topic, exc)
+                self._bad(service.name, exc)
                 query.reply_err(str(exc).encode())
                 return
             try:
-                query.reply(query.key_expr, handler(request).encode())
+                reply = handler(request)
+                reply.stamp = time.time()
+                query.reply(query.key_expr, reply.SerializeToString())
             except Exception as exc:
-                log.exception("queryable %s failed", self.key(topic))
+                log.exception("queryable %s failed", self.key(service))
                 query.reply_err(f"{type(exc).__name__}: {exc}".encode())
 
-        self._declared.append(self.session.declare_queryable(self.key(topic), on_query))
+        self._declared.append(self.session.declare_queryable(self.key(service), on_query))
 
-    def query(self, topic: str, request: Message, reply_cls: type[M], timeout: float = 10.0) -> M:
+    def query(self, service: Service[M, R], request: M, timeout: float = 10.0) -> R:
         """Send ``request`` and return the first reply; raises TimeoutError or MessageError."""
-        for reply in self.session.get(self.key(topic), payload=request.encode(), timeout=timeout):
+        request.stamp = time.time()
+        payload = request.SerializeToString()
+        for reply in self.session.get(self.key(service), payload=payload, timeout=timeout):
             if reply.ok is not None:
-                return messages.decode(reply.ok.payload.to_bytes(), reply_cls)
+                return messages.decode(reply.ok.payload.to_bytes(), service.reply)
             raise MessageError(
-                f"{self.key(topic)}: error reply: {reply.err.payload.to_bytes().decode(errors='replace')}"
+                f"{self.key(service)}: error reply: {reply.err.payload.to_bytes().decode(errors='replace')}"
             )
-        raise TimeoutError(f"no reply on {self.key(topic)} within {timeout} s")
+        raise TimeoutError(f"no reply on {self.key(service)} within {timeout} s")
 
     def declare_alive(self, name: str) -> zenoh.LivelinessToken:
         """Declare this process's liveliness token ``adaptiveh/<robot>/alive/<name>``."""

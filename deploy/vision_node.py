@@ -17,15 +17,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
 from deploy import messages as m
-from deploy.config import build, load_yaml, robot_name
-from deploy.transport import Bus, ZenohConfig, open_session
+from deploy.config import ConfigError, StackConfig
+from deploy.node import Node
+from deploy.transport import Bus
 from vision.cameras.protocol import Camera, CameraError, Frame
 from vision.config import Intrinsics, VisionConfig
 from vision.pipeline import PipelineOutput, VisionPipeline, annotate
@@ -34,36 +33,12 @@ log = logging.getLogger(__name__)
 EVENT_INTERVAL_S = 1.0  # at most one event per kind per second (with a count of the suppressed ones)
 
 
-@dataclass(frozen=True)
-class VisionSettings:
-    name: str
-    zenoh: ZenohConfig
-    vision: VisionConfig
-
-
-def load_vision_config(data: dict[str, Any] | None, where: str = "vision") -> VisionConfig:
-    """Build the ``vision:`` section (also used by the physics owner to set up the sim camera)."""
-    return build(VisionConfig, data, where)
-
-
-def load_settings(path: str | Path) -> VisionSettings:
-    """Read ``name``, ``zenoh`` and ``vision`` from a top-level config (other sections are others')."""
-    data = load_yaml(path)
-    name = robot_name(data, path)
-    return VisionSettings(
-        name=name,
-        zenoh=build(ZenohConfig, data.get("zenoh"), "zenoh"),
-        vision=load_vision_config(data.get("vision"), f"{path}: vision"),
-    )
-
-
 # -- frames <-> messages -----------------------------------------------------------------------------
-def frame_message(frame: Frame, seq: int, depth_scale: float = 0.001) -> m.CameraFrame:
+def frame_message(frame: Frame, depth_scale: float = 0.001) -> m.CameraFrame:
     """A ``CameraFrame`` of ``frame``: depth quantised to uint16 in units of ``depth_scale`` metres."""
     k = frame.intrinsics
     depth = np.clip(np.round(frame.depth / depth_scale), 0, 65535).astype(np.uint16)
     return m.CameraFrame(
-        seq=seq,
         width=k.width,
         height=k.height,
         rgb=np.ascontiguousarray(frame.rgb, np.uint8).tobytes(),
@@ -76,7 +51,7 @@ def frame_message(frame: Frame, seq: int, depth_scale: float = 0.001) -> m.Camer
 
 def frame_from_message(msg: m.CameraFrame) -> Frame:
     """The ``Frame`` in a ``CameraFrame``; raises ``MessageError`` when sizes or intrinsics are wrong."""
-    rgb, depth = msg.images()
+    rgb, depth = m.frame_images(msg)
     fx, fy, cx, cy = msg.intrinsics
     try:
         k = Intrinsics(msg.width, msg.height, fx, fy, cx, cy)
@@ -85,24 +60,23 @@ def frame_from_message(msg: m.CameraFrame) -> Frame:
     return Frame(rgb=rgb, depth=depth, intrinsics=k, stamp=msg.frame_stamp, seq=msg.seq)
 
 
-def target_message(out: PipelineOutput, seq: int) -> m.Target:
+def target_message(out: PipelineOutput) -> m.Target:
     est = out.estimate
     return m.Target(
-        seq=seq,
         position=[float(x) for x in est.position],
         velocity=[float(x) for x in est.velocity],
         covariance=[float(x) for x in np.asarray(est.covariance).ravel()],
         valid=bool(est.valid),
         frame_stamp=out.frame_stamp,
-        status=est.status,
+        status=m.enum(m.Target, "status", est.status),
     )
 
 
 class SimFramePublisher:
     """For the physics owner: render the scene's client and publish ``camera/frame``.
 
-    Use: ``node.add_periodic(cfg.rate_hz, SimFramePublisher(bus, scene.client_id, cfg))``. It renders
-    on the caller's thread (PyBullet is single-owner) and never raises: a render failure is logged.
+    Call it at the frame rate from the thread that owns the PyBullet client (PyBullet is single-owner;
+    the vision benchmark and tests do). It never raises: a render failure is logged.
     """
 
     def __init__(self, bus: Bus, client_id: int, config: VisionConfig) -> None:
@@ -110,7 +84,7 @@ class SimFramePublisher:
 
         self.camera = camera_from_config(client_id, config)
         self._publish = bus.publisher(m.CAMERA)
-        self.seq = 0
+        self.seq = 0  # the last frame published
         self.render_s = 0.0
 
     def __call__(self) -> None:
@@ -120,29 +94,29 @@ class SimFramePublisher:
         except CameraError as exc:
             log.warning("sim camera: %s", exc)
             return
-        self.seq += 1
-        self._publish(frame_message(frame, self.seq))
+        self.seq = self._publish(frame_message(frame))
         self.render_s = time.perf_counter() - t0
 
 
 # -- the node ----------------------------------------------------------------------------------------
-class VisionNode:
+class VisionNode(Node):
     """Run with ``start()``/``stop()``. ``camera`` overrides the RealSense (tests, other devices)."""
 
-    def __init__(self, settings: VisionSettings, camera: Camera | None = None) -> None:
+    alive_as = "vision"
+
+    def __init__(self, settings: StackConfig, camera: Camera | None = None) -> None:
+        if settings.vision is None:
+            raise ConfigError(f"robot {settings.name}: the config has no vision section")
         self.settings = settings
         self.config = settings.vision
         self.pipeline = VisionPipeline(self.config)
-        self.bus = Bus(open_session(settings.zenoh), settings.name)
+        super().__init__(settings.name, settings.zenoh)
         self._pub_target = self.bus.publisher(m.TARGET)
         self._pub_image = self.bus.publisher(m.CAMERA_ANNOTATED, express=False)
         self._pub_event = self.bus.publisher(m.EVENTS_SAFETY)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._pending: Frame | m.CameraFrame | None = None
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._seq = {"target": 0, "image": 0, "event": 0}
         self._events: dict[str, tuple[float, int]] = {}
         self._last_image = 0.0
         self._last_frame_wall = time.time()
@@ -151,21 +125,20 @@ class VisionNode:
         self.camera = camera
         if camera is None:
             self.camera = self._open_camera()
-        self.bus.declare_alive("vision")
+        self.declare_alive()
 
     def _open_camera(self) -> Camera | None:
         """The configured camera (None for ``frames``: they arrive on ``camera/frame``)."""
         if self.config.camera == "frames":
-            self.bus.subscribe(m.CAMERA, m.CameraFrame, self._offer, on_bad=self._on_bad)
+            self.bus.subscribe(m.CAMERA, self._offer, on_bad=self._on_bad)
             return None
         if self.config.camera == "sim":
             from vision.cameras.sim_mirror import MirrorSimCamera
 
             mirror = MirrorSimCamera(self.config)
-            self.bus.subscribe(m.STATE, m.RobotState, lambda s: mirror.set_joints(s.q), on_bad=self._on_bad)
+            self.bus.subscribe(m.STATE, lambda s: mirror.set_joints(s.q), on_bad=self._on_bad)
             self.bus.subscribe(
                 m.TARGET_TRUTH,
-                m.Target,
                 lambda t: mirror.set_target(t.position, t.frame_stamp),
                 on_bad=self._on_bad,
             )
@@ -187,20 +160,16 @@ class VisionNode:
 
     def _capture_loop(self) -> None:
         assert self.camera is not None
-        while not self._stop.is_set():
+        while not self.stopping:
             try:
                 frame = self.camera.capture()
             except CameraError as exc:
                 self.event("camera_error", str(exc))
-                self._stop.wait(0.05)
+                self.wait(0.05)
                 continue
             self._offer(frame)
 
     # -- outputs -----------------------------------------------------------------------------------
-    def _next(self, name: str) -> int:
-        self._seq[name] += 1
-        return self._seq[name]
-
     def event(self, kind: str, detail: str, key: str | None = None) -> None:
         """Publish ``events/safety`` (kind, ``vision: detail``), at most once a second per ``key``.
 
@@ -215,10 +184,10 @@ class VisionNode:
                 self._events[key] = (last, suppressed + 1)
                 return
             self._events[key] = (now, 0)
-            seq = self._next("event")
         more = f" (+{suppressed} more since the last report)" if suppressed else ""
         log.warning("vision %s: %s%s", kind, detail, more)
-        self._pub_event(m.SafetyEvent(seq=seq, kind=kind, detail=f"vision: {detail}{more}", held=False))
+        kind_value = m.enum(m.SafetyEvent, "kind", kind)
+        self._pub_event(m.SafetyEvent(kind=kind_value, detail=f"vision: {detail}{more}", held=False))
 
     def _handle(self, item: Frame | m.CameraFrame) -> None:
         if isinstance(item, m.CameraFrame):
@@ -241,16 +210,14 @@ class VisionNode:
             self._last_image = now
             a = self.config.annotated
             jpeg = annotate(frame, out, a.width, a.jpeg_quality)
-            self._pub_image(
-                m.AnnotatedImage(seq=self._next("image"), jpeg=jpeg, detected=out.detection is not None)
-            )
+            self._pub_image(m.AnnotatedImage(jpeg=jpeg, detected=out.detection is not None))
 
     def _publish_target(self, out: PipelineOutput) -> None:
-        self._pub_target(target_message(out, self._next("target")))
+        self._pub_target(target_message(out))
 
     def _process_loop(self) -> None:
         lost_after = self.config.tracking.lost_after_s
-        while not self._stop.is_set():
+        while not self.stopping:
             with self._wake:
                 if self._pending is None:
                     self._wake.wait(timeout=lost_after / 2)
@@ -268,34 +235,17 @@ class VisionNode:
                 self.event("bad_frame", f"pipeline error: {type(exc).__name__}: {exc}")
 
     # -- lifecycle ---------------------------------------------------------------------------------
-    def start(self) -> VisionNode:
-        self._threads = [threading.Thread(target=self._process_loop, name="vision-process", daemon=True)]
+    def workers(self) -> dict[str, Callable[[], None]]:
+        loops = {"vision-process": self._process_loop}
         if self.camera is not None:
-            self._threads.append(
-                threading.Thread(target=self._capture_loop, name="vision-capture", daemon=True)
-            )
-        for t in self._threads:
-            t.start()
-        return self
+            loops["vision-capture"] = self._capture_loop
+        return loops
 
-    def request_stop(self) -> None:
-        self._stop.set()
+    def wake(self) -> None:
         with self._wake:
             self._wake.notify_all()
 
-    def wait(self, timeout: float | None = None) -> bool:
-        return self._stop.wait(timeout)
-
-    def stop(self) -> None:
-        self.request_stop()
-        for t in self._threads:
-            t.join(timeout=5.0)
+    def close(self) -> None:
         if self.camera is not None:
             self.camera.close()
-        self.bus.close()
-
-    def __enter__(self) -> VisionNode:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+        super().close()

@@ -6,10 +6,11 @@ control period with exactly ``a`` applied (gymnasium semantics: TD3/DDPG run on 
 
 Chunks are a receding horizon: the tail after ``a`` is a plan (``planner(obs, a, n)``, by default zero
 displacements = stay put) that the robot keeps playing if the learner is late, and the next step's chunk
-(higher ``chunk_seq``) preempts it; the robot reports the dropped count. The learner node marks chunks
+(higher ``seq``) preempts it; the robot reports the dropped count. The learner node marks chunks
 with their segment index, so a retreat shows as the first chunk of a new segment preempting the old
 segment's plan. Observation: ee position/velocity (from ``state``) and target position/velocity (from
-vision's ``target``, or ``sim/target_truth`` when configured) — 12 values like ``sim.reach.NSReachEnv``.
+vision's ``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process
+``NSReach-v0`` (the reach task's observation is shared).
 """
 
 from __future__ import annotations
@@ -25,7 +26,13 @@ import numpy as np
 
 from deploy import messages as m
 from deploy.transport import Bus
-from sim.reach import SUCCESS_M, reach_observation, reach_observation_bounds
+from tasks.reach import (
+    reach_distance,
+    reach_observation,
+    reach_observation_bounds,
+    reach_reward,
+    reach_success,
+)
 
 
 class EnvStopped(RuntimeError):
@@ -37,19 +44,20 @@ Planner = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
 
 @dataclass(frozen=True)
 class EnvSettings:
-    """What the env needs to know about the robot (from the ``robot:`` and ``learner:`` sections)."""
+    """What the env needs to know about the robot and the task: ``deploy.learner_node.env_settings``
+    fills it from the stack config's ``robot:`` and ``learner:`` sections (no defaults copied here)."""
 
-    workspace_lo: tuple[float, float, float] = (0.2, -0.45, 0.05)
-    workspace_hi: tuple[float, float, float] = (0.8, 0.45, 0.7)
-    max_step_m: float = 0.05
-    control_rate_hz: float = 20.0
-    max_episode_steps: int = 200
-    chunk_len: int = 10
-    target_topic: str = m.TARGET
-    target_lo: tuple[float, float, float] = (0.35, -0.3, 0.12)
-    target_hi: tuple[float, float, float] = (0.65, 0.3, 0.45)
-    target_speed_max: float = 0.06
-    step_timeout_s: float = 2.0
+    workspace_lo: tuple[float, ...]
+    workspace_hi: tuple[float, ...]
+    max_step_m: float
+    control_rate_hz: float
+    max_episode_steps: int
+    chunk_len: int
+    target_topic: str  # a key of deploy.messages.TOPICS
+    target_lo: tuple[float, ...]
+    target_hi: tuple[float, ...]
+    target_speed_max: float
+    step_timeout_s: float
     reset_timeout_s: float = 30.0
 
 
@@ -72,7 +80,7 @@ def _seen_at(target: m.Target | None) -> float:
 
 def _fixed_since(target: m.Target | None, stamp: float) -> bool:
     """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
-    return target is not None and target.status == "tracking" and _seen_at(target) >= stamp
+    return target is not None and target.status == m.Target.TRACKING and _seen_at(target) >= stamp
 
 
 class ZenohReachEnv(gym.Env):
@@ -96,16 +104,19 @@ class ZenohReachEnv(gym.Env):
         self._state: m.RobotState | None = None
         self._state_count = 0
         self._target: m.Target | None = None
-        self.chunk_seq = int(time.time() * 1000) % 1_000_000_000  # newer than a previous run's chunks
+        self.chunk_seq = 0  # the last chunk sent
         self.global_step = 0
         self._steps = 0
         self.dropped_total = 0
         self.preemptions = 0
-        self.chunk_first: dict[int, int] = {}  # chunk_seq -> segment, for the node's accounting
-        self._pub_chunk = bus.publisher(m.CMD_CHUNK)
-        bus.subscribe(m.STATE, m.RobotState, self._on_state)
-        bus.subscribe(settings.target_topic, m.Target, self._on_target)
-        bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, self._on_status)
+        # Chunk numbers start from the wall clock so a restarted learner's chunks are newer than the last
+        # run's (robot-io refuses older ones).
+        first = int(time.time() * 1000) % 1_000_000_000
+        self._pub_chunk = bus.publisher(m.CMD_CHUNK, first_seq=first)
+        self.target_topic = m.TOPICS[settings.target_topic]
+        bus.subscribe(m.STATE, self._on_state)
+        bus.subscribe(self.target_topic, self._on_target)
+        bus.subscribe(m.CHUNK_STATUS, self._on_status)
         self.on_status: Callable[[m.ChunkStatus], None] | None = None
         self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
 
@@ -131,7 +142,7 @@ class ZenohReachEnv(gym.Env):
     # -- helpers -------------------------------------------------------------------------------------
     @property
     def robot_mode(self) -> str:
-        return self._state.mode if self._state is not None else "unknown"
+        return m.label(self._state, "mode") if self._state is not None else "unknown"
 
     def _wait(self, pred: Callable[[], bool], timeout: float) -> bool:
         """Wait for ``pred`` up to ``timeout``; ``EnvStopped`` as soon as the node is stopping."""
@@ -153,10 +164,10 @@ class ZenohReachEnv(gym.Env):
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
         obs = reach_observation(ee, state.ee_vel, target.position, target.velocity)
-        distance = float(np.linalg.norm(ee - np.asarray(target.position)))
+        distance = reach_distance(ee, target.position)
         info = {
             "distance": distance,
-            "success": distance < SUCCESS_M,
+            "success": reach_success(distance),
             "global_step": self.global_step,
             "target_speed": float(np.linalg.norm(target.velocity)),
             "target_age_s": max(0.0, time.time() - target.stamp),
@@ -176,7 +187,6 @@ class ZenohReachEnv(gym.Env):
                 reply = self.bus.query(
                     m.RESET,
                     m.ResetRequest(seed=seed if seed is not None else -1),
-                    m.ResetReply,
                     timeout=min(10.0, self.settings.reset_timeout_s),
                 )
                 if reply.ok:
@@ -187,7 +197,7 @@ class ZenohReachEnv(gym.Env):
             if time.monotonic() > deadline:
                 raise TimeoutError(f"robot reset failed: {err}")
             time.sleep(0.5)
-        state = m.decode(reply.state, m.RobotState)
+        state = reply.state
         with self._cond:
             self._state = state
         # Only a target detected after the reset: a reset moves the (simulated) target, and the last
@@ -195,7 +205,7 @@ class ZenohReachEnv(gym.Env):
         # episodes (measured), which wrecked the critic.
         if not self._wait(lambda: _fixed_since(self._target, state.stamp), self.settings.reset_timeout_s):
             raise TimeoutError(
-                f"no valid target on {self.bus.key(self.settings.target_topic)} since the reset"
+                f"no valid target on {self.bus.key(self.target_topic)} since the reset"
             )
         self._steps = 0
         obs, _, info = self._observe()
@@ -217,14 +227,8 @@ class ZenohReachEnv(gym.Env):
         while True:
             if self.stop.is_set():
                 raise EnvStopped("stopped while waiting for the robot")
-            self.chunk_seq += 1
-            seq = self.chunk_seq
-            self.chunk_first[seq] = self.segment
-            if len(self.chunk_first) > 1000:
-                self.chunk_first.pop(next(iter(self.chunk_first)))
-            self._pub_chunk(
-                m.ActionChunk(seq=seq, chunk_seq=seq, actions=chunk.ravel().tolist(), segment=self.segment)
-            )
+            seq = self._pub_chunk(m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment))
+            self.chunk_seq = seq
             n = len(chunk)
 
             def executed(seq: int = seq, n: int = n) -> bool:
@@ -242,4 +246,4 @@ class ZenohReachEnv(gym.Env):
         self.global_step += 1
         obs, distance, info = self._observe()
         truncated = self._steps >= self.settings.max_episode_steps
-        return obs, -distance, False, truncated, info
+        return obs, reach_reward(distance), False, truncated, info

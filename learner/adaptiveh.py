@@ -201,7 +201,7 @@ class AdaptiveH:
             env_state = get_state()
         return {
             "name": self.name,
-            "config": self.config.to_dict(),
+            "config": self.config.model_dump(),
             "seed": self.seed,
             "policy": self.policy.f.state_dict(),
             "critic": self.critic.state_dict(),
@@ -251,5 +251,5 @@ class RKHSFixedH(AdaptiveH):
     name = "rkhs"
 
     def __init__(self, env: gym.Env, config: AdaptiveHConfig | None = None, seed: int = 0):
-        cfg = AdaptiveHConfig(**{**(config or AdaptiveHConfig()).to_dict(), "retreat": "off"})
+        cfg = (config or AdaptiveHConfig()).model_copy(update={"retreat": "off"})
         super().__init__(env, cfg, seed)

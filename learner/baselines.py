@@ -27,7 +27,6 @@ import json
 import pickle
 import random
 import zipfile
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,50 +38,12 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 
+from learner.config import SB3Config
 from learner.protocol import EpisodeRecord, RunLog, StepCallback
 
-ALGOS: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG}
+SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG}
 _INFO_SKIP = {"episode", "terminal_observation", "TimeLimit.truncated", "final_observation", "final_info"}
 _FORMAT = 1
-
-
-@dataclass
-class SB3Config:
-    """TD3/DDPG settings (zoo Pendulum-v1 values, ``learning_starts`` lowered: see module docstring)."""
-
-    learning_rate: float = 1e-3
-    gamma: float = 0.98
-    buffer_size: int = 200_000
-    learning_starts: int = 1_000
-    batch_size: int = 256
-    tau: float = 0.005
-    train_freq_episodes: int = 1
-    gradient_steps: int = -1
-    noise_std: float = 0.1
-    net_arch: list[int] = field(default_factory=lambda: [400, 300])
-    torch_threads: int = 1
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.learning_rate < 1.0:
-            raise ValueError(f"learning_rate must be in (0, 1), got {self.learning_rate}")
-        if not 0.0 < self.gamma < 1.0:
-            raise ValueError(f"gamma must be in (0, 1), got {self.gamma}")
-        if not 0.0 < self.tau <= 1.0:
-            raise ValueError(f"tau must be in (0, 1], got {self.tau}")
-        for name in ("buffer_size", "batch_size", "train_freq_episodes", "torch_threads"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.learning_starts < 0:
-            raise ValueError(f"learning_starts must be >= 0, got {self.learning_starts}")
-        if self.gradient_steps == 0 or self.gradient_steps < -1:
-            raise ValueError(
-                f"gradient_steps must be -1 (as many as env steps) or >= 1, got {self.gradient_steps}"
-            )
-        if self.noise_std < 0.0:
-            raise ValueError(f"noise_std must be >= 0, got {self.noise_std}")
-        if not self.net_arch or any(int(n) < 1 for n in self.net_arch):
-            raise ValueError(f"net_arch must be a non-empty list of positive widths, got {self.net_arch}")
-        self.net_arch = [int(n) for n in self.net_arch]
 
 
 def _scalar_info(info: dict[str, Any]) -> dict[str, float]:
@@ -170,8 +131,8 @@ class SB3Agent:
     def __init__(
         self, algo: str, env: gym.Env, config: SB3Config | dict[str, Any] | None = None, seed: int = 0
     ) -> None:
-        if algo not in ALGOS:
-            raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {algo!r}")
+        if algo not in SB3_CLASSES:
+            raise ValueError(f"algo must be one of {sorted(SB3_CLASSES)}, got {algo!r}")
         if not isinstance(env.action_space, gym.spaces.Box):
             raise ValueError("TD3/DDPG need a continuous (Box) action space")
         self.name = algo
@@ -189,7 +150,7 @@ class SB3Agent:
         cfg = self.config
         n_act = int(np.prod(self.env.action_space.shape))
         noise = NormalActionNoise(mean=np.zeros(n_act), sigma=cfg.noise_std * np.ones(n_act))
-        return ALGOS[self.algo](
+        return SB3_CLASSES[self.algo](
             "MlpPolicy",
             self.env,
             learning_rate=cfg.learning_rate,
@@ -244,7 +205,7 @@ class SB3Agent:
         rng = {"numpy": np.random.get_state(), "python": random.getstate(), "torch": torch.get_rng_state()}
         get_state = getattr(self.env.unwrapped, "get_state", None)
         rng["env"] = get_state() if callable(get_state) else None
-        meta = {"format": _FORMAT, "algo": self.algo, "seed": self.seed, "config": asdict(self.config)}
+        meta = {"format": _FORMAT, "algo": self.algo, "seed": self.seed, "config": self.config.model_dump()}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("meta.json", json.dumps(meta))
@@ -272,7 +233,7 @@ class SB3Agent:
         self.config = SB3Config(**meta["config"])
         self.seed = int(meta["seed"])
         torch.set_num_threads(self.config.torch_threads)
-        self.model = ALGOS[self.algo].load(io.BytesIO(model_bytes), env=self.env, device="cpu")
+        self.model = SB3_CLASSES[self.algo].load(io.BytesIO(model_bytes), env=self.env, device="cpu")
         self.model.load_replay_buffer(io.BytesIO(buffer_bytes))
         self.model._last_obs = None  # force a fresh episode on this env at the next learn()
         np.random.set_state(rng["numpy"])

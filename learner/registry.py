@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal, get_args
 
 import gymnasium as gym
 
 from learner.protocol import Agent
 
-ALGOS = ("adaptiveh", "rkhs", "td3", "ddpg")
+# The algorithms, in the paper's order (its tables and figures list them so); configs declare
+# ``algo: Algo`` and everything else iterates ``ALGOS``.
+Algo = Literal["adaptiveh", "td3", "ddpg", "rkhs"]
+ALGOS: tuple[str, ...] = get_args(Algo)
 
 
 def make_agent(algo: str, env: gym.Env, seed: int = 0, config: dict[str, Any] | None = None) -> Agent:

@@ -35,12 +35,15 @@ All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = �
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import numpy as np
 
 from learner.dictionary import RKHSFunction
 from learner.kernels import GaussianKernel
 
-MODES = ("local", "smoothed", "literal", "off")
+RetreatMode = Literal["local", "smoothed", "literal", "off"]
+MODES: tuple[str, ...] = get_args(RetreatMode)
 
 
 def rkhs_inner(

@@ -1,24 +1,68 @@
-"""The one Panda description, read from pybullet_data's URDF and turned into each library's form.
+"""Robot descriptions: which arm (a registry keyed by model name) and its URDF in each library's form.
 
-PyBullet loads the URDF as is. Pinocchio loads the same file and locks the fingers (the arm is what we
-control). MuJoCo (for mink) gets a form generated here: visual and collision geometry stripped (IK needs
+A model's identity (URDF, arm and finger joints, end-effector frame, home pose) is a ``RobotModel`` in
+``MODELS``; a second model (``fr3``) is one more entry, chosen by name. Joint limits are read from the
+URDF, never copied. PyBullet loads the URDF as is (robot_io's PyBullet backend hands the model to
+sim's scene). Pinocchio loads the same file and locks the fingers (the arm is what we control).
+MuJoCo (for mink) gets a form generated here: visual and collision geometry stripped (IK needs
 kinematics only, and MuJoCo cannot resolve ``package://`` mesh paths), finger joints made fixed, and
 ``fusestatic`` off so the fixed-joint tool-centre-point body survives as a frame.
+
+MuJoCo and Pinocchio are imported where a model is built, so reading a robot config stays light.
 """
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
-import pinocchio as pin
+import pybullet_data
 
-from sim.panda_scene import ARM_JOINTS, EE_LINK, FINGER_JOINTS, panda_urdf_path
+if TYPE_CHECKING:
+    import mujoco
+    import pinocchio as pin
 
-FINGER_OPENING = 0.04  # the scene keeps the hand open; Pinocchio locks the fingers here
+
+@dataclass(frozen=True)
+class RobotModel:
+    """The identity of one arm model; sim's scene reads these same fields (``sim.panda_scene.SceneRobot``)."""
+
+    name: str
+    urdf_path: Path
+    arm_joints: tuple[str, ...]
+    finger_joints: tuple[str, ...]
+    ee_link: str  # the tool centre point frame that IK, FK and the workspace box refer to
+    home_q: tuple[float, ...]  # the pose reset and startup go to
+    finger_opening: float  # the fingers are held (PyBullet) and locked (Pinocchio) at this opening
+
+
+MODELS: dict[str, RobotModel] = {
+    "panda": RobotModel(
+        name="panda",
+        urdf_path=Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf",
+        arm_joints=tuple(f"panda_joint{i}" for i in range(1, 8)),
+        finger_joints=("panda_finger_joint1", "panda_finger_joint2"),
+        ee_link="panda_grasptarget",  # 0.105 m beyond the hand flange
+        # A comfortable pose above the table, the usual Panda "ready" configuration.
+        home_q=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
+        finger_opening=0.04,
+    ),
+}
+
+
+def robot_model(name: str) -> RobotModel:
+    """The registered model ``name``; a ValueError lists the known ones."""
+    if name not in MODELS:
+        raise ValueError(f"unknown robot model {name!r}; choose from {sorted(MODELS)}")
+    model = MODELS[name]
+    if not model.urdf_path.is_file():
+        raise FileNotFoundError(f"{model.urdf_path}: the URDF of robot model {name!r} is missing")
+    return model
 
 
 @dataclass(frozen=True)
@@ -28,14 +72,14 @@ class JointLimits:
     velocity: np.ndarray
 
 
-class PandaDescription:
-    """Names, limits and the three loaded forms of the Panda arm."""
+class RobotDescription:
+    """Names, limits and the three loaded forms of one arm model (the Panda unless told otherwise)."""
 
-    arm_joints = ARM_JOINTS
-    ee_frame = EE_LINK
-
-    def __init__(self) -> None:
-        self.urdf_path = panda_urdf_path()
+    def __init__(self, model: str = "panda") -> None:
+        self.model = robot_model(model)
+        self.urdf_path = self.model.urdf_path
+        self.arm_joints = self.model.arm_joints
+        self.ee_frame = self.model.ee_link
 
     @cached_property
     def urdf_text(self) -> str:
@@ -61,7 +105,7 @@ class PandaDescription:
                 for element in link.findall(tag):
                     link.remove(element)
         for joint in root.iter("joint"):
-            if joint.get("name") in FINGER_JOINTS:
+            if joint.get("name") in self.model.finger_joints:
                 joint.set("type", "fixed")
                 for element in joint.findall("limit"):
                     joint.remove(element)
@@ -72,6 +116,8 @@ class PandaDescription:
         return ET.tostring(root, encoding="unicode")
 
     def mujoco_model(self) -> mujoco.MjModel:
+        import mujoco
+
         model = mujoco.MjModel.from_xml_string(self.mujoco_xml())
         names = [model.joint(i).name for i in range(model.njnt)]
         if names != list(self.arm_joints):
@@ -80,11 +126,13 @@ class PandaDescription:
 
     def pinocchio_model(self) -> pin.Model:
         """Pinocchio model of the arm: the full URDF with the finger joints locked open."""
+        import pinocchio as pin
+
         full = pin.buildModelFromUrdf(str(self.urdf_path))
-        lock = [full.getJointId(name) for name in FINGER_JOINTS]
+        lock = [full.getJointId(name) for name in self.model.finger_joints]
         q_ref = pin.neutral(full)
         for jid in lock:
-            q_ref[full.joints[jid].idx_q] = FINGER_OPENING
+            q_ref[full.joints[jid].idx_q] = self.model.finger_opening
         model = pin.buildReducedModel(full, lock, q_ref)
         if [model.names[i] for i in range(1, model.njoints)] != list(self.arm_joints):
             raise RuntimeError(f"reduced Pinocchio model has joints {list(model.names)[1:]}")

@@ -15,7 +15,7 @@ import mink
 import numpy as np
 
 from robot_io.config import IKConfig
-from robot_io.description import PandaDescription
+from robot_io.description import RobotDescription
 
 log = logging.getLogger(__name__)
 
@@ -34,13 +34,13 @@ class DifferentialIK:
     def __init__(
         self,
         config: IKConfig,
-        description: PandaDescription | None = None,
+        description: RobotDescription | None = None,
         velocity_scale: float = 0.5,
         joint_margin: float = 0.02,
         home_q: np.ndarray | None = None,
     ) -> None:
         self.config = config
-        self.description = description or PandaDescription()
+        self.description = description or RobotDescription()
         self.model = self.description.mujoco_model()
         self.configuration = mink.Configuration(self.model)
         limits = self.description.limits

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from robot_io.description import PandaDescription
+from robot_io.description import RobotDescription
 
 
 @dataclass(frozen=True)
@@ -22,8 +22,8 @@ class CommandCheck:
 class Kinematics:
     """Tool-centre-point kinematics of the Panda arm (7 joints)."""
 
-    def __init__(self, description: PandaDescription | None = None) -> None:
-        self.description = description or PandaDescription()
+    def __init__(self, description: RobotDescription | None = None) -> None:
+        self.description = description or RobotDescription()
         self.model = self.description.pinocchio_model()
         self.data = self.model.createData()
         self.ee_id = self.model.getFrameId(self.description.ee_frame)

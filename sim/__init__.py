@@ -1,4 +1,7 @@
-"""The non-stationary environments and the PyBullet Panda scene; importing registers the envs."""
+"""The non-stationary environments and the PyBullet Panda scene; importing registers the physics-only envs.
+
+``NSReach-v0`` needs robot_io's controller, so ``tasks`` (above robot_io) registers it.
+"""
 
 from gymnasium.envs.registration import register, registry
 
@@ -10,4 +13,3 @@ def _register(env_id: str, entry_point: str) -> None:
 
 _register("NSCartPoleContinuous-v0", "sim.cartpole:NSCartPoleContinuous")
 _register("NSPendulum-v0", "sim.pendulum:NSPendulum")
-_register("NSReach-v0", "sim.reach:NSReachEnv")

@@ -12,17 +12,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, Protocol
 
 import numpy as np
 import pybullet as pb
 import pybullet_data
+from pydantic import Field, model_validator
+
+from common.config import Box3, Section
 
 PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
-ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
-EE_LINK = "panda_grasptarget"  # the tool centre point, 0.105 m beyond the hand flange
-# A comfortable pose above the table, the usual Panda "ready" configuration.
-HOME_Q = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
 TARGET_RGBA = (1.0, 0.0, 0.0, 1.0)
 TARGET_HALF = 0.025  # the target box is 5 cm on a side
 TABLE_TOP_Z = 0.0
@@ -36,36 +35,60 @@ def panda_urdf_path() -> Path:
     return PANDA_URDF
 
 
+class SceneRobot(Protocol):
+    """What the scene needs to know of its arm; robot_io's ``RobotModel`` is one (sim never imports it)."""
+
+    @property
+    def urdf_path(self) -> Path: ...
+    @property
+    def arm_joints(self) -> tuple[str, ...]: ...
+    @property
+    def finger_joints(self) -> tuple[str, ...]: ...
+    @property
+    def ee_link(self) -> str: ...
+    @property
+    def home_q(self) -> tuple[float, ...]: ...
+
+
 @dataclass(frozen=True)
-class TargetMotion:
+class StandalonePanda:
+    """The arm of a scene built without robot_io (vision's replica and calibration scenes, benches).
+
+    robot_io's ``MODELS["panda"]`` is the description the controller uses; a test holds the two equal.
+    """
+
+    urdf_path: Path = PANDA_URDF
+    arm_joints: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
+    finger_joints: tuple[str, ...] = ("panda_finger_joint1", "panda_finger_joint2")
+    ee_link: str = "panda_grasptarget"  # the tool centre point, 0.105 m beyond the hand flange
+    # A comfortable pose above the table, the usual Panda "ready" configuration.
+    home_q: tuple[float, ...] = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+
+
+MotionPreset = Literal["static", "slow", "fast"]
+
+
+class TargetMotion(Section):
     """How the target wanders: speed varies smoothly within [speed_min, speed_max] (m/s).
 
     ``turn_rate`` (rad/s, rms) sets how fast the heading drifts, ``speed_period`` (s) how fast the
     speed swings. The target stays in ``box`` (lo xyz, hi xyz), reflected at its walls.
     """
 
-    speed_min: float = 0.02
+    speed_min: float = Field(0.02, ge=0)
     speed_max: float = 0.06
-    speed_period: float = 8.0
-    turn_rate: float = 0.6
-    box: tuple[tuple[float, float, float], tuple[float, float, float]] = (
-        (0.35, -0.3, 0.12),
-        (0.65, 0.3, 0.45),
-    )
+    speed_period: float = Field(8.0, gt=0)
+    turn_rate: float = Field(0.6, ge=0)
+    box: Box3 = ((0.35, -0.3, 0.12), (0.65, 0.3, 0.45))
 
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.speed_min <= self.speed_max:
-            raise ValueError(f"speed_min ({self.speed_min}) must be in [0, speed_max ({self.speed_max})]")
-        if self.speed_period <= 0:
-            raise ValueError(f"speed_period must be > 0, got {self.speed_period}")
-        if self.turn_rate < 0:
-            raise ValueError(f"turn_rate must be >= 0, got {self.turn_rate}")
-        lo, hi = (np.asarray(b, float) for b in self.box)
-        if lo.shape != (3,) or hi.shape != (3,) or np.any(lo >= hi):
-            raise ValueError(f"box must be ((x,y,z) lo, (x,y,z) hi) with lo < hi, got {self.box}")
+    @model_validator(mode="after")
+    def _min_below_max(self) -> TargetMotion:
+        if self.speed_min > self.speed_max:
+            raise ValueError(f"speed_min ({self.speed_min}) must be <= speed_max ({self.speed_max})")
+        return self
 
     @staticmethod
-    def preset(name: str) -> TargetMotion:
+    def preset(name: MotionPreset) -> TargetMotion:
         """``static``, ``slow`` or ``fast``."""
         presets = {
             "static": TargetMotion(speed_min=0.0, speed_max=0.0),
@@ -137,7 +160,9 @@ class PandaScene:
         time_step: float = 1.0 / 240.0,
         gui: bool = False,
         joint_force: float = 500.0,
+        robot: SceneRobot | None = None,
     ) -> None:
+        self.robot: SceneRobot = robot or StandalonePanda()
         self.time_step = float(time_step)
         self.joint_force = float(joint_force)
         self.motion = TargetMotion.preset(motion) if isinstance(motion, str) else motion
@@ -150,23 +175,26 @@ class PandaScene:
         pb.setTimeStep(self.time_step, physicsClientId=cid)
         self.plane_id = pb.loadURDF("plane.urdf", [0, 0, TABLE_TOP_Z - TABLE_HEIGHT], physicsClientId=cid)
         self.table_id = self._make_table()
-        self.robot_id = pb.loadURDF(str(panda_urdf_path()), [0, 0, 0], useFixedBase=True, physicsClientId=cid)
+        urdf = self.robot.urdf_path
+        if not urdf.is_file():
+            raise FileNotFoundError(f"{urdf}: no such URDF")
+        self.robot_id = pb.loadURDF(str(urdf), [0, 0, 0], useFixedBase=True, physicsClientId=cid)
         names = {
             pb.getJointInfo(self.robot_id, j, physicsClientId=cid)[1].decode(): j
             for j in range(pb.getNumJoints(self.robot_id, physicsClientId=cid))
         }
-        self.arm_joints = [names[n] for n in ARM_JOINTS]
-        self.finger_joints = [names[n] for n in FINGER_JOINTS]
+        self.arm_joints = [names[n] for n in self.robot.arm_joints]
+        self.finger_joints = [names[n] for n in self.robot.finger_joints]
         # A link's index equals its parent joint's index in PyBullet.
         self.ee_link = next(
             j
             for j in names.values()
-            if pb.getJointInfo(self.robot_id, j, physicsClientId=cid)[12].decode() == EE_LINK
+            if pb.getJointInfo(self.robot_id, j, physicsClientId=cid)[12].decode() == self.robot.ee_link
         )
         self.target_id = self._make_target()
         self.time = 0.0
         self.target = TargetState.start(self.motion, seed)
-        self.reset_robot(HOME_Q)
+        self.reset_robot()
         self._place_target()
 
     # -- construction ------------------------------------------------------------------------------
@@ -189,8 +217,9 @@ class PandaScene:
         return pb.createMultiBody(0, -1, vis, [0.5, 0.0, 0.3], physicsClientId=cid)
 
     # -- robot -------------------------------------------------------------------------------------
-    def reset_robot(self, q: np.ndarray | tuple[float, ...] = HOME_Q) -> None:
-        """Teleport the arm to ``q`` at rest and hold it there (fingers open)."""
+    def reset_robot(self, q: np.ndarray | tuple[float, ...] | None = None) -> None:
+        """Teleport the arm to ``q`` (default: its home pose) at rest and hold it there (fingers open)."""
+        q = self.robot.home_q if q is None else q
         cid = self.client_id
         for j, qj in zip(self.arm_joints, q, strict=True):
             pb.resetJointState(self.robot_id, j, float(qj), 0.0, physicsClientId=cid)

@@ -8,29 +8,27 @@ every ``jump_every`` steps.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
+from pydantic import Field, model_validator
+
+from common.config import Section
 
 
-@dataclass
-class DriftConfig:
+class DriftConfig(Section):
     base: float
     low: float
     high: float
-    amplitude: float = 0.0
-    period: int = 10_000
-    walk_std: float = 0.0
-    jump_every: int = 0  # 0: no jumps
-    jump_size: float = 0.0
+    amplitude: float = Field(0.0, ge=0)
+    period: int = Field(10_000, ge=1)  # steps
+    walk_std: float = Field(0.0, ge=0)
+    jump_every: int = Field(0, ge=0)  # 0: no jumps
+    jump_size: float = Field(0.0, ge=0)
 
-    def __post_init__(self) -> None:
+    @model_validator(mode="after")
+    def _base_in_band(self) -> DriftConfig:
         if not self.low <= self.base <= self.high:
             raise ValueError(f"base {self.base} must lie in [low, high] = [{self.low}, {self.high}]")
-        if self.period < 1:
-            raise ValueError(f"period must be >= 1 step, got {self.period}")
-        if min(self.amplitude, self.walk_std, self.jump_every, self.jump_size) < 0:
-            raise ValueError("amplitude, walk_std, jump_every and jump_size must be >= 0")
+        return self
 
 
 class DriftSchedule:
@@ -67,7 +65,7 @@ class DriftSchedule:
             "walk": self.walk,
             "jump": self.jump,
             "phase": self.phase,
-            "config": asdict(self.config),
+            "config": self.config.model_dump(),
         }
 
     def set_state(self, state: dict) -> None:

@@ -15,9 +15,10 @@ import numpy as np
 import pybullet as pb
 from scipy.spatial.transform import Rotation
 
-from sim.panda_scene import HOME_Q, PandaScene
+from sim.panda_scene import PandaScene
 from vision.calibration import BoardView, CharucoBoard
 from vision.cameras.sim import SimRGBDCamera
+from vision.config import Intrinsics, VisionConfig
 from vision.extrinsics import make_transform, matrix_to_pose, pose_to_matrix
 
 
@@ -80,7 +81,7 @@ def facing_mount(
 
     The board hangs ``offset`` m beyond the tool centre point, its face towards the camera, centred.
     """
-    scene.reset_robot(HOME_Q)
+    scene.reset_robot()
     pos, quat = scene.ee_pose()
     base_T_gripper = make_transform(Rotation.from_quat(quat).as_matrix(), pos)
     cam = pose_to_matrix(camera.pose)
@@ -114,7 +115,7 @@ def collect(
         for _ in range(max_tries):
             if len(seen) >= views:
                 break
-            q = np.asarray(HOME_Q) + rng.uniform(-joint_spread, joint_spread, size=7)
+            q = np.asarray(scene.robot.home_q) + rng.uniform(-joint_spread, joint_spread, size=7)
             scene.reset_robot(q)
             base_T_gripper = sim_board.follow()
             frame = camera.capture()
@@ -124,5 +125,24 @@ def collect(
                 seen.append(view)
     finally:
         sim_board.close()
-        scene.reset_robot(HOME_Q)
+        scene.reset_robot()
     return poses, seen
+
+
+def simulated_session(
+    vision: VisionConfig, views: int = 12, seed: int = 0, scale: float = 2.0
+) -> tuple[list[np.ndarray], list[BoardView], Intrinsics, np.ndarray]:
+    """A whole calibration session in simulation: (hand poses, board views, intrinsics, true base_T_cam).
+
+    The board on the Panda's hand, random arm poses, the sim camera at ``vision.sim_pose()`` rendered at
+    ``scale`` times the configured size (corners are found more reliably at higher resolution).
+    """
+    k = vision.intrinsics
+    k = k.scaled(round(k.width * scale), round(k.height * scale))
+    scene = PandaScene(motion="static", seed=seed)
+    try:
+        camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
+        poses, seen = collect(scene, camera, CharucoBoard(vision.calibration), views=views, seed=seed)
+    finally:
+        scene.close()
+    return poses, seen, k, pose_to_matrix(vision.sim_pose())

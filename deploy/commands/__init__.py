@@ -3,14 +3,22 @@
 The CLI discovers the modules here, so adding a command never edits a shared file.
 """
 
+import argparse
 import logging
 import os
 import signal
 import sys
-import threading
-from collections.abc import Callable
 
 LOG_FORMAT = "%(asctime)s %(name)s %(levelname)s %(message)s"
+
+
+def add_part_arguments(parser: argparse.ArgumentParser, sections: str) -> None:
+    """The options every part shares: ``--config``, ``--duration``, ``--log-level``."""
+    parser.add_argument("--config", default="configs/sim.yaml", help=f"top-level YAML ({sections})")
+    parser.add_argument(
+        "--duration", type=float, default=0.0, help="stop after this many seconds (0: run until ^C)"
+    )
+    parser.add_argument("--log-level", default="INFO")
 
 
 def setup_logging(level: str) -> None:
@@ -36,18 +44,3 @@ def die_with_supervisor() -> None:
     ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
     if os.getppid() != int(parent):  # the supervisor died before prctl took effect
         sys.exit(f"adaptiveh: the supervisor (pid {parent}) is gone; not starting")
-
-
-def on_stop_signal(action: Callable[[], None], *signums: int) -> None:
-    """Run ``action`` (e.g. ``node.request_stop``) when one of ``signums`` arrives, on its own thread.
-
-    A handler runs in the main thread between two bytecodes, possibly while that thread holds a lock
-    inside ``Event.wait``; setting an Event from the handler itself can then deadlock (seen: robot-io
-    hung for good on SIGTERM after its supervisor was killed). The handler only starts a thread.
-    """
-
-    def handler(signum: int, frame: object) -> None:
-        threading.Thread(target=action, name=f"on-signal-{signum}", daemon=True).start()
-
-    for signum in signums:
-        signal.signal(signum, handler)

@@ -1,4 +1,4 @@
-"""``adaptiveh bench paper``: the paper's experiments (see ``deploy/paper_bench.py``)."""
+"""``adaptiveh bench paper``: the command line of the paper's experiments (``experiments.paper``)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _paper(args: argparse.Namespace) -> int:
-    from deploy.paper_bench import format_verdicts, main_paper
+    from experiments.paper import main_paper
+    from experiments.tables import format_verdicts
 
     if args.jobs < 1:
         raise SystemExit("--jobs must be >= 1")

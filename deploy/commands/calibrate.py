@@ -61,22 +61,9 @@ def write_extrinsics(path: str | Path, position: tuple[float, ...], quaternion: 
 
 
 def _sim_session(settings, args) -> tuple[list, list, object, np.ndarray | None]:
-    from sim.panda_scene import PandaScene
-    from vision.calibration import CharucoBoard
-    from vision.calibration_sim import collect
-    from vision.cameras.sim import SimRGBDCamera
-    from vision.extrinsics import pose_to_matrix
+    from vision.calibration_sim import simulated_session
 
-    v = settings.vision
-    k = v.intrinsics
-    k = k.scaled(round(k.width * args.scale), round(k.height * args.scale))
-    scene = PandaScene(motion="static", seed=args.seed)
-    try:
-        camera = SimRGBDCamera(scene.client_id, k, v.sim_pose(), v.sim)
-        poses, views = collect(scene, camera, CharucoBoard(v.calibration), views=args.views, seed=args.seed)
-    finally:
-        scene.close()
-    return poses, views, k, pose_to_matrix(v.sim_pose())
+    return simulated_session(settings.vision, args.views, args.seed, args.scale)
 
 
 def _live_session(settings, args) -> tuple[list, list, object, None]:
@@ -99,7 +86,7 @@ def _live_session(settings, args) -> tuple[list, list, object, None]:
     camera = RealSenseCamera(settings.vision.realsense)
     poses, views = [], []
     try:
-        bus.subscribe(m.STATE, m.RobotState, on_state)
+        bus.subscribe(m.STATE, on_state)
         if not got.wait(10.0):
             raise RuntimeError(
                 f"no robot state on {bus.key(m.STATE)} within 10 s: is `adaptiveh robot-io` running?"
@@ -124,16 +111,14 @@ def _live_session(settings, args) -> tuple[list, list, object, None]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.config import ConfigError
-    from deploy.vision_node import load_settings
+    from deploy.config import load_stack_config
     from vision.calibration import CalibrationError, solve_eye_to_hand
     from vision.extrinsics import matrix_to_pose, rotation_error_deg, translation_error
 
     setup_logging(args.log_level)
-    try:
-        settings = load_settings(args.config)
-    except ConfigError as exc:
-        log.error("%s", exc)
+    settings = load_stack_config(args.config)
+    if settings.vision is None:
+        log.error("%s: no vision section (the camera and the board to calibrate)", args.config)
         return 2
     session = _sim_session if settings.vision.camera == "sim" else _live_session
     poses, views, intrinsics, truth = session(settings, args)

@@ -8,7 +8,7 @@ import logging
 import signal
 import sys
 
-from deploy.commands import on_stop_signal, setup_logging
+from deploy.commands import setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -29,23 +29,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.config import ConfigError
-    from deploy.learner_node import LearnerNode, load_settings
+    from deploy.config import load_stack_config
+    from deploy.learner_node import LearnerNode
+    from deploy.node import on_stop_signal
 
     setup_logging(args.log_level)
     overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
-    try:
-        settings = load_settings(args.config, overrides)
-    except ConfigError as exc:
-        logging.error("%s", exc)
-        return 2
-    node = LearnerNode(settings, control_token=args.token)
+    cfg = load_stack_config(args.config, learner=overrides)
+    node = LearnerNode(cfg, control_token=args.token)
     on_stop_signal(node.request_stop, signal.SIGTERM, signal.SIGINT)
+    lc = cfg.learner
     logging.info(
         "learner %s on '%s': %d steps (resuming at %d), checkpoints in %s",
-        settings.learner.algo,
-        settings.name,
-        settings.learner.steps,
+        lc.algo,
+        cfg.name,
+        lc.steps,
         node.resumed_from,
         node.ckpt.parent,
     )
@@ -53,14 +51,7 @@ def run(args: argparse.Namespace) -> int:
         result = node.run()
     finally:
         node.close()
-    json.dump(
-        {
-            "summary": result["summary"],
-            "dropped_actions": result["dropped_actions"],
-            "retreat_preemptions": result["retreat_preemptions"],
-        },
-        sys.stdout,
-        default=float,
-    )
+    keys = ("summary", "dropped_actions", "retreat_preemptions")
+    json.dump({k: result[k] for k in keys}, sys.stdout, default=float)
     print()
     return 0

@@ -11,7 +11,7 @@ import logging
 import signal
 import threading
 
-from deploy.commands import on_stop_signal, setup_logging
+from deploy.commands import setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -39,22 +39,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.config import ConfigError, build, load_yaml
+    from deploy.config import load_stack_config
     from deploy.monitor.server import MonitorConfig, MonitorServer
+    from deploy.node import on_stop_signal
     from deploy.recording import read, recorded_robot, replay
-    from deploy.transport import Bus, ZenohConfig, open_session
+    from deploy.transport import Bus, open_session
 
     setup_logging(args.log_level)
-    try:
-        data = load_yaml(args.config)
-        zc = build(ZenohConfig, data.get("zenoh"), "zenoh")
-        section = dict(data.get("monitor") or {})
-        if args.port is not None:
-            section["port"] = args.port
-        mcfg = build(MonitorConfig, section, "monitor")
-    except ConfigError as exc:
-        logging.error("%s", exc)
-        return 2
+    stack = load_stack_config(args.config, monitor={"port": args.port})
+    zc, mcfg = stack.zenoh, stack.monitor or MonitorConfig()
     try:
         records = read(args.file)
         robot = args.robot or (recorded_robot(records[0][0]) + "-replay" if records else "replay")
@@ -84,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
             stop.wait(args.keep if args.keep >= 0 else None)
     finally:
         if server is not None:
-            server.stop()
-        session.close()
+            server.stop()  # closes its bus, and with it the session
+        else:
+            session.close()
     return 0

@@ -3,10 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
-import threading
-
-from deploy.commands import on_stop_signal
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -20,24 +16,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import signal
-
-    import zenoh
+    from deploy.node import Node, run_until_stopped
+    from deploy.transport import ZenohConfig
 
     listen = args.listen or ["tcp/0.0.0.0:7447"]
-    zc = zenoh.Config()
-    zc.insert_json5("mode", json.dumps("router"))
-    zc.insert_json5("listen/endpoints", json.dumps(listen))
-    zc.insert_json5("connect/endpoints", json.dumps(args.connect))
-    zc.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(zc)
-    stop = threading.Event()
-    on_stop_signal(stop.set, signal.SIGTERM)
-    print(f"zenoh router {session.zid()} listening on {listen}, connected to {args.connect}", flush=True)
-    try:
-        stop.wait(args.duration if args.duration > 0 else None)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        session.close()
+    router = Node("router", ZenohConfig(mode="router", listen=tuple(listen), connect=tuple(args.connect)))
+    zid = router.bus.session.zid()
+    print(f"zenoh router {zid} listening on {listen}, connected to {args.connect}", flush=True)
+    run_until_stopped(router, args.duration)
     return 0

@@ -1,4 +1,4 @@
-"""``adaptiveh train``: one in-process training run with a progress bar, result.json and curve.png."""
+"""``adaptiveh train``: the command line of one in-process training run (``experiments.training``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from deploy.config import ConfigError
+from common.config import ConfigError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,13 +23,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.training import load_spec, train
+    from experiments.training import load_spec, train
 
     overrides = {"env": args.env, "algo": args.algo, "steps": args.steps, "seed": args.seed}
     try:
         spec = load_spec(args.config, overrides)
         if args.preset:
-            spec.env_kwargs = {**spec.env_kwargs, "preset": args.preset}
+            spec = spec.model_copy(update={"env_kwargs": {**spec.env_kwargs, "preset": args.preset}})
         result = train(spec, args.out, resume=not args.fresh)
     except ConfigError as exc:
         print(f"config error: {exc}", file=sys.stderr)

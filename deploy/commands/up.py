@@ -7,7 +7,7 @@ import json
 import logging
 import signal
 
-from deploy.commands import on_stop_signal, setup_logging
+from deploy.commands import setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.config import ConfigError
+    from deploy.node import on_stop_signal
     from deploy.stack import Stack, check
 
     setup_logging(args.log_level)
@@ -33,11 +33,7 @@ def run(args: argparse.Namespace) -> int:
         for line in lines:
             print(line)
         return 0 if ok else 1
-    try:
-        stack = Stack(args.config, token=args.token or None, steps=args.steps)
-    except ConfigError as exc:
-        logging.error("%s", exc)
-        return 2
+    stack = Stack(args.config, token=args.token or None, steps=args.steps)
     print(f"operator token: {stack.token}", flush=True)
     on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:

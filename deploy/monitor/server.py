@@ -10,35 +10,33 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import secrets
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+from pydantic import Field
+
+from common.config import Section
 from deploy import messages as m
+from deploy.node import Node
 from deploy.transport import Bus
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 
 
-@dataclass(frozen=True)
-class MonitorConfig:
+class MonitorConfig(Section):
     """The ``monitor:`` section."""
 
     host: str = "127.0.0.1"
-    port: int = 8765
-    history: int = 600  # points kept per plot
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.port, int) or not 0 <= self.port < 65536:
-            raise ValueError(f"port: must be 0..65535, got {self.port!r}")
-        if self.history < 10:
-            raise ValueError(f"history: must be >= 10, got {self.history}")
+    port: int = Field(8765, ge=0, le=65535)  # 0: any free port
+    history: int = Field(600, ge=10)  # points kept per plot
 
 
 class MonitorState:
@@ -62,21 +60,21 @@ class MonitorState:
         self.image_detected = False
         self.counts = {"retreats": 0, "segments": 0, "dropped": 0, "safety": 0, "messages": 0}
         self._n_state = 0
-        bus.subscribe(m.STATE, m.RobotState, self._state)
-        bus.subscribe(m.TARGET, m.Target, self._target)
-        bus.subscribe(m.EVENTS_RETREAT, m.RetreatEvent, self._retreat)
-        bus.subscribe(m.CMD_CHUNK, m.ActionChunk, self._chunk)
-        bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, self._status)
-        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self._safety)
-        bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self._telemetry)
-        bus.subscribe(m.CAMERA_ANNOTATED, m.AnnotatedImage, self._image)
+        bus.subscribe(m.STATE, self._state)
+        bus.subscribe(m.TARGET, self._target)
+        bus.subscribe(m.EVENTS_RETREAT, self._retreat)
+        bus.subscribe(m.CMD_CHUNK, self._chunk)
+        bus.subscribe(m.CHUNK_STATUS, self._status)
+        bus.subscribe(m.EVENTS_SAFETY, self._safety)
+        bus.subscribe(m.TELEMETRY_LEARNER, self._telemetry)
+        bus.subscribe(m.CAMERA_ANNOTATED, self._image)
 
     def _state(self, s: m.RobotState) -> None:
         with self.lock:
             self.counts["messages"] += 1
             self.robot = {
-                "mode": s.mode,
-                "ee": s.ee_pos,
+                "mode": m.label(s, "mode"),
+                "ee": list(s.ee_pos),
                 "chunk_seq": s.chunk_seq,
                 "queue_len": s.queue_len,
                 "joint_speed": max((abs(v) for v in s.dq), default=0.0),  # rad/s, the hold check
@@ -92,18 +90,19 @@ class MonitorState:
                 self.target.append([round(x, 4) for x in t.position])
 
     def _retreat(self, e: m.RetreatEvent) -> None:
+        reason = m.label(e, "reason")
         with self.lock:
             self.counts["segments"] += 1
-            self.counts["retreats"] += e.reason == "retreat"
+            self.counts["retreats"] += reason == "retreat"
             self.threshold = e.threshold
-            self.segments.append({"segment": e.segment, "H": e.H, "reason": e.reason, "step": e.global_step})
+            self.segments.append({"segment": e.segment, "H": e.H, "reason": reason, "step": e.global_step})
             for x in e.statistic:
-                self.statistic.append((e.segment, round(x, 5), e.reason))
+                self.statistic.append((e.segment, round(x, 5), reason))
 
     def _chunk(self, c: m.ActionChunk) -> None:
         with self.lock:
             self.current_chunk = {
-                "chunk_seq": c.chunk_seq,
+                "chunk_seq": c.seq,
                 "n": len(c.actions) // 3,
                 "segment": c.segment,
                 "executed": 0,
@@ -128,7 +127,8 @@ class MonitorState:
     def _safety(self, e: m.SafetyEvent) -> None:
         with self.lock:
             self.counts["safety"] += 1
-            self.safety.append({"kind": e.kind, "detail": e.detail, "held": e.held, "stamp": e.stamp})
+            kind = m.label(e, "kind")
+            self.safety.append({"kind": kind, "detail": e.detail, "held": e.held, "stamp": e.stamp})
 
     def _telemetry(self, t: m.LearnerTelemetry) -> None:
         with self.lock:
@@ -161,16 +161,15 @@ class MonitorState:
             }
 
 
-class MonitorServer:
-    """HTTP server + Zenoh state; ``url`` once started. ``token`` guards control requests."""
+class MonitorServer(Node):
+    """HTTP server + Zenoh state on ``bus`` (closed with the server); ``token`` guards control requests."""
 
     def __init__(self, bus: Bus, config: MonitorConfig, token: str | None = None) -> None:
-        self.bus = bus
+        super().__init__(bus.robot, bus=bus)
         self.config = config
         self.token = token or secrets.token_urlsafe(12)
         self.state = MonitorState(bus, config.history)
         self._pub_control = bus.publisher(m.CONTROL)
-        self._seq = 0
         self.controls: list[str] = []
         server = self
 
@@ -213,7 +212,6 @@ class MonitorServer:
 
         self.httpd = ThreadingHTTPServer((config.host, config.port), Handler)
         self.httpd.daemon_threads = True
-        self._thread: threading.Thread | None = None
 
     @property
     def url(self) -> str:
@@ -224,21 +222,24 @@ class MonitorServer:
         """Validate and publish one operator request; returns (HTTP code, reply)."""
         if not secrets.compare_digest(str(token), self.token):
             return 403, {"ok": False, "error": "wrong or missing token"}
-        if command not in m.Control.COMMANDS:
-            return 400, {"ok": False, "error": f"unknown command {command!r}"}
+        try:
+            value = m.enum(m.Control, "command", command)
+        except m.MessageError as exc:
+            return 400, {"ok": False, "error": str(exc)}
         vec = [0.0, 0.0, 0.0] if jog is None else [float(x) for x in jog]
-        if len(vec) != 3:
-            raise ValueError("jog must have 3 values")
-        self._seq += 1
-        self._pub_control(m.Control(seq=self._seq, command=command, jog=vec, token=self.token))
+        if len(vec) != 3 or not all(math.isfinite(x) for x in vec):
+            raise ValueError("jog must have 3 finite values")
+        self._pub_control(m.Control(command=value, jog=vec, token=self.token))
         self.controls.append(command)
         return 200, {"ok": True, "command": command, "at": time.time()}
 
-    def start(self) -> MonitorServer:
-        self._thread = threading.Thread(target=self.httpd.serve_forever, name="monitor-http", daemon=True)
-        self._thread.start()
-        return self
+    def workers(self) -> dict[str, Callable[[], None]]:
+        return {"monitor-http": self.httpd.serve_forever}
 
-    def stop(self) -> None:
-        self.httpd.shutdown()
+    def wake(self) -> None:
+        if self._threads:  # shutdown() waits for serve_forever, which runs only once started
+            self.httpd.shutdown()
+
+    def close(self) -> None:
         self.httpd.server_close()
+        super().close()

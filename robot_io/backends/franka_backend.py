@@ -27,7 +27,7 @@ import numpy as np
 
 from robot_io.backends.protocol import JointState
 from robot_io.config import RobotConfig
-from robot_io.description import PandaDescription
+from robot_io.description import RobotDescription
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ class FrankaBackend:
             self.lib.RealtimeConfig.kEnforce if fc.realtime == "enforce" else self.lib.RealtimeConfig.kIgnore
         )
         self.robot = self.lib.Robot(fc.ip, realtime)
-        self.vmax = PandaDescription().limits.velocity * config.velocity_scale
+        self.vmax = RobotDescription().limits.velocity * config.velocity_scale
         self.amax = MAX_JOINT_ACCEL * ACCEL_SCALE
         self._lock = threading.Lock()
         self._stop = threading.Event()

@@ -1,4 +1,7 @@
-"""The mock arm: the shared PyBullet Panda scene, stepped by the backend at the control rate."""
+"""The mock arm: sim's PyBullet scene with robot_io's arm model, stepped by the backend at the control rate.
+
+The one robot_io module that uses ``sim``: the simulation backend (DESIGN section 1).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +9,7 @@ import numpy as np
 
 from robot_io.backends.protocol import JointState
 from robot_io.config import RobotConfig
+from robot_io.description import robot_model
 from sim.panda_scene import PandaScene
 
 
@@ -18,6 +22,7 @@ class PyBulletBackend:
             motion=config.target_motion,
             seed=config.seed,
             time_step=config.period / config.physics_substeps,
+            robot=robot_model("panda"),
         )
         self.substeps = config.physics_substeps
         self.scene.reset_robot(config.home_q)

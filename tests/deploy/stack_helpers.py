@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
-import random
 import subprocess
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
+from loopback import free_endpoint, unique_name
 
 
 def write_stack_config(
@@ -18,8 +21,8 @@ def write_stack_config(
     """``configs/sim.yaml`` made private to one test: its own robot name and Zenoh hub port, the monitor on
     a free port, recording and checkpoints under ``directory``; ``learner`` overrides that section."""
     cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"{prefix}{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
+    cfg["name"] = unique_name(prefix)
+    cfg["zenoh"]["hub"] = free_endpoint()
     if vision_rate_hz is not None:
         cfg["vision"]["rate_hz"] = vision_rate_hz
     cfg["learner"].update({"checkpoint_dir": str(directory / "learner"), **learner})
@@ -42,3 +45,35 @@ def learn_one_episode(config: Path, checkpoint_dir: Path) -> dict:
     res = json.loads((checkpoint_dir / "result.json").read_text())
     assert res["global_step"] == 60 and len(res["episodes"]) == 1
     return res
+
+
+@contextmanager
+def running_part(
+    part: str, cfg: dict, directory: Path, ready: Callable[[], Any]
+) -> Iterator[subprocess.Popen]:
+    """``adaptiveh <part>`` on ``cfg`` (written to ``directory``) as a subprocess until the block ends.
+
+    ``ready()`` waits for the part to be up (a probe's ``wait``, raising AssertionError on time-out); if
+    it never is, the test fails with the part's own output. The part is terminated (then killed) after.
+    """
+    path = directory / f"{part}.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", part, "--config", str(path), "--log-level", "WARNING"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        try:
+            ready()
+        except AssertionError:
+            proc.kill()
+            pytest.fail(f"{part} did not come up:\n{proc.communicate()[0]}")
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()

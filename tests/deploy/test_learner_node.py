@@ -5,15 +5,15 @@ learner loads the last periodic checkpoint and keeps learning from its step, not
 from __future__ import annotations
 
 import json
-import random
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import yaml
+from bus_probe import BusProbe
+from loopback import unique_name
 
 from deploy import messages as m
 from deploy.transport import Bus, ZenohConfig, open_session
@@ -21,39 +21,20 @@ from deploy.transport import Bus, ZenohConfig, open_session
 EVERY = 50  # checkpoint_every = one episode, so checkpoints fall on episode boundaries
 
 
-class Watch:
+class Watch(BusProbe):
     """The test's own peer on the bus: robot states, safety events, learner telemetry."""
 
     def __init__(self, hub: str, robot: str) -> None:
-        self.bus = Bus(open_session(ZenohConfig(hub=hub)), robot)
-        self.lock = threading.Lock()
-        self.states: list[tuple[float, m.RobotState]] = []
-        self.safety: list[m.SafetyEvent] = []
-        self.step = 0
-        self.bus.subscribe(m.STATE, m.RobotState, self._state)
-        self.bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, self._safety)
-        self.bus.subscribe(m.TELEMETRY_LEARNER, m.LearnerTelemetry, self._tel)
+        super().__init__(Bus(open_session(ZenohConfig(hub=hub)), robot))
+        self.states = self.collect(m.STATE)
+        self.safety = self.collect(m.EVENTS_SAFETY, arrival=False)
+        self.telemetry = self.collect(m.TELEMETRY_LEARNER, arrival=False)
 
-    def _state(self, s: m.RobotState) -> None:
+    @property
+    def step(self) -> int:
+        """The learner's highest global step seen."""
         with self.lock:
-            self.states.append((time.monotonic(), s))
-
-    def _safety(self, e: m.SafetyEvent) -> None:
-        with self.lock:
-            self.safety.append(e)
-
-    def _tel(self, t: m.LearnerTelemetry) -> None:
-        with self.lock:
-            self.step = max(self.step, t.global_step)
-
-    def wait(self, pred, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self.lock:
-                if pred():
-                    return
-            time.sleep(0.05)
-        raise AssertionError(f"timed out waiting for {what}")
+            return max((t.global_step for t in self.telemetry), default=0)
 
 
 def _learn(cfg: Path, *extra: str) -> subprocess.Popen:
@@ -65,10 +46,10 @@ def _learn(cfg: Path, *extra: str) -> subprocess.Popen:
     )
 
 
-def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path) -> None:
+def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path, endpoint: str) -> None:
     cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"ck{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
+    cfg["name"] = unique_name("ck")
+    cfg["zenoh"]["hub"] = endpoint
     cfg.pop("vision")
     ckdir = tmp_path / "l"
     cfg["learner"].update(
@@ -89,14 +70,13 @@ def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path) 
         seen = watch.step
         first.send_signal(signal.SIGKILL)
         first.wait(timeout=10)
-        watch.wait(
-            lambda: any(e.kind == "liveliness" and e.held for e in watch.safety), 10, "a liveliness hold"
-        )
-        t_lost = time.monotonic()
+        lost = m.SafetyEvent.LIVELINESS
+        watch.wait(lambda: any(e.kind == lost and e.held for e in watch.safety), 10, "a liveliness hold")
+        t_lost = time.time()  # the probe stamps arrivals with wall-clock time
         time.sleep(1.5)
         with watch.lock:
             late = [s for t, s in watch.states if t > t_lost + 0.5]
-        assert late and all(s.mode == "held" for s in late), {s.mode for s in late}
+        assert late and all(s.mode == m.RobotState.HELD for s in late), {s.mode for s in late}
         assert max(abs(v) for s in late for v in s.dq) < 0.02  # rad/s: the arm stands still
         ee = [s.ee_pos for s in late]
         assert max(abs(a - b) for p in ee for a, b in zip(p, ee[0], strict=True)) < 0.002
@@ -113,8 +93,9 @@ def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path) 
         assert len(res["episodes"]) >= resumed // cfg["learner"]["max_episode_steps"] + 1  # old ones kept
         assert any(s["global_step"] > resumed for s in res["segments"])  # it kept learning
         with watch.lock:
-            assert any(s.mode == "running" for t, s in watch.states if t > t_lost + 2.0)  # released
-            assert any(e.kind == "release" and "liveliness" in e.detail for e in watch.safety)  # it is back
+            running, release = m.RobotState.RUNNING, m.SafetyEvent.RELEASE
+            assert any(s.mode == running for t, s in watch.states if t > t_lost + 2.0)  # released
+            assert any(e.kind == release and "liveliness" in e.detail for e in watch.safety)  # it is back
         # A clean stop saves mid-episode (total is not a multiple of the episode length here); resuming
         # from it abandons that stale episode and carries on from exactly that step.
         third = _learn(path, "--steps", str(total + 60))

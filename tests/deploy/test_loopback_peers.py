@@ -2,13 +2,12 @@
 
 Zenoh peers in the default ``peer_to_peer`` routing never forward for each other: before the fix a third
 process that merely connected to the hub heard the hub's owner but never the other joiner. Each test
-starts real processes on a random loopback hub port.
+starts real processes on a free loopback hub port.
 """
 
 from __future__ import annotations
 
 import json
-import random
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ import urllib.request
 from pathlib import Path
 
 import yaml
+from loopback import unique_name
 from stack_helpers import learn_one_episode
 
 PROBE = r"""
@@ -43,12 +43,8 @@ session.close()
 """
 
 
-def _hub() -> str:
-    return f"tcp/127.0.0.1:{random.randint(20000, 60000)}"
-
-
-def test_three_processes_reach_each_other_without_a_router():
-    hub, robot = _hub(), f"lp{random.randint(0, 10**6)}"
+def test_three_processes_reach_each_other_without_a_router(endpoint):
+    hub, robot = endpoint, unique_name("lp")
     names = ["a", "b", "c"]
     procs = []
     for name in names:
@@ -73,12 +69,12 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "deploy.cli", *args]
 
 
-def test_parts_started_alone_reach_each_other(tmp_path: Path):
+def test_parts_started_alone_reach_each_other(tmp_path: Path, endpoint: str):
     """robot-io takes the hub; vision, monitor and learner join. Vision's target reaches the learner and
     the learner's retreats reach the monitor: joiner to joiner, which the old hub never carried."""
     cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"alone{random.randint(0, 10**6)}"
-    cfg["zenoh"]["hub"] = _hub()
+    cfg["name"] = unique_name("alone")
+    cfg["zenoh"]["hub"] = endpoint
     cfg["vision"]["rate_hz"] = 5.0
     cfg["learner"].update(steps=60, checkpoint_dir=str(tmp_path / "l"))
     cfg["monitor"]["port"] = 0

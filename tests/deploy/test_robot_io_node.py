@@ -3,16 +3,13 @@
 One ``adaptiveh robot-io`` subprocess (PyBullet mock) per module; the test is the learner and the monitor.
 """
 
-import random
-import subprocess
-import sys
-import threading
 import time
-from collections import deque
 
 import numpy as np
 import pytest
-import yaml
+from bus_probe import BusProbe
+from loopback import free_port, unique_name
+from stack_helpers import running_part
 
 from deploy import messages as m
 from deploy.transport import Bus, ZenohConfig, open_session
@@ -21,29 +18,20 @@ RATE = 20.0
 PERIOD = 1.0 / RATE
 
 
-class Listener:
+class Listener(BusProbe):
     """Collects everything the robot publishes."""
 
     def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.states: deque[tuple[float, m.RobotState]] = deque(maxlen=4000)
-        self.status: list[m.ChunkStatus] = []
-        self.safety: list[tuple[float, m.SafetyEvent]] = []
-        self.truth: m.Target | None = None
-        bus.subscribe(m.STATE, m.RobotState, self._state)
-        bus.subscribe(m.CHUNK_STATUS, m.ChunkStatus, lambda s: self._add(self.status, s))
-        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, lambda e: self._add(self.safety, (time.monotonic(), e)))
-        bus.subscribe(m.TARGET_TRUTH, m.Target, self._truth)
+        super().__init__(bus)
+        self.states = self.collect(m.STATE, maxlen=4000)
+        self.status = self.collect(m.CHUNK_STATUS, arrival=False)
+        self.safety = self.collect(m.EVENTS_SAFETY)
+        self._truth = self.collect(m.TARGET_TRUTH, arrival=False, maxlen=1)
 
-    def _add(self, where, item):
+    @property
+    def truth(self) -> m.Target | None:
         with self.lock:
-            where.append(item)
-
-    def _state(self, s):
-        self._add(self.states, (time.monotonic(), s))
-
-    def _truth(self, t):
-        self.truth = t
+            return self._truth[-1] if self._truth else None
 
     def latest(self) -> m.RobotState:
         with self.lock:
@@ -51,22 +39,13 @@ class Listener:
 
     def events(self, kind: str) -> list[tuple[float, m.SafetyEvent]]:
         with self.lock:
-            return [e for e in self.safety if e[1].kind == kind]
-
-    def wait(self, pred, timeout: float = 5.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            out = pred()
-            if out:
-                return out
-            time.sleep(0.01)
-        raise AssertionError(f"timed out after {timeout} s")
+            return [e for e in self.safety if m.label(e[1], "kind") == kind]
 
 
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory):
-    port = random.randint(20000, 60000)
-    name = f"t{random.randint(0, 10**9)}"
+    port = free_port()
+    name = unique_name("t")
     cfg = {
         "name": name,
         "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]},
@@ -77,33 +56,18 @@ def robot(tmp_path_factory):
             "watchdog_timeout_s": 0.5,
         },
     }
-    path = tmp_path_factory.mktemp("robot_io") / "sim.yaml"
-    path.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
     endpoint = (f"tcp/127.0.0.1:{port}",)
     bus = Bus(open_session(ZenohConfig(connect=endpoint)), name)
     listener = Listener(bus)
     learner = [Bus(open_session(ZenohConfig(connect=endpoint)), name)]  # the learner's session, swappable
     learner[0].declare_alive("learner")
-    try:
-        listener.wait(lambda: len(listener.states) > 3, timeout=60)
-    except AssertionError:
-        proc.kill()
-        pytest.fail(f"robot-io did not come up:\n{proc.communicate()[0]}")
-    Robot.endpoint, Robot.learner = endpoint, learner
-    yield bus, listener, proc
-    learner[0].close()
-    bus.close()
-    proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    tmp = tmp_path_factory.mktemp("robot_io")
+    up = lambda: listener.wait(lambda: len(listener.states) > 3, 60)  # noqa: E731
+    with running_part("robot-io", cfg, tmp, up) as proc:
+        Robot.endpoint, Robot.learner = endpoint, learner
+        yield bus, listener, proc
+        learner[0].close()
+        bus.close()
 
 
 class Robot:
@@ -118,24 +82,23 @@ class Chunks:
     def send(cls, bus: Bus, actions) -> int:
         cls.seq += 1
         pub = bus.session.declare_publisher(bus.key(m.CMD_CHUNK))
-        pub.put(
-            m.ActionChunk(seq=cls.seq, chunk_seq=cls.seq, actions=np.asarray(actions, float).ravel()).encode()
-        )
+        pub.put(m.ActionChunk(seq=cls.seq, actions=np.asarray(actions, float).ravel()).SerializeToString())
         pub.undeclare()
         return cls.seq
 
 
 def control(bus: Bus, command: str) -> None:
-    bus.session.put(bus.key(m.CONTROL), m.Control(command=command).encode())
+    msg = m.Control(command=m.enum(m.Control, "command", command), jog=[0.0, 0.0, 0.0])
+    bus.session.put(bus.key(m.CONTROL), msg.SerializeToString())
 
 
 def test_01_reset_query_homes_the_arm(robot):
     bus, listener, _ = robot
-    reply = bus.query(m.RESET, m.ResetRequest(seed=3), m.ResetReply, timeout=20)
+    reply = bus.query(m.RESET, m.ResetRequest(seed=3), timeout=20)
     assert reply.ok
-    state = m.decode(reply.state, m.RobotState)
+    state = reply.state
     np.testing.assert_allclose(state.ee_pos, [0.307, 0.0, 0.485], atol=2e-3)
-    assert state.mode == "running"
+    assert state.mode == m.RobotState.RUNNING
 
 
 def test_02_scripted_policy_reaches_the_moving_target(robot):
@@ -178,28 +141,28 @@ def test_04_watchdog_holds_when_commands_stop(robot):
     after = listener.wait(
         lambda: [s for t, s in list(listener.states) if t > t_event + 2 * PERIOD], timeout=2
     )
-    assert after[0].mode == "held" and max(abs(v) for v in after[0].dq) < 0.01
+    assert after[0].mode == m.RobotState.HELD and max(abs(v) for v in after[0].dq) < 0.01
     Chunks.send(bus, [[0.0, 0.0, 0.0]])  # a fresh command releases the watchdog hold
-    listener.wait(lambda: listener.latest().mode == "running", timeout=2)
+    listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)
 
 
 def test_05_estop_stops_the_arm_within_two_periods(robot):
     bus, listener, _ = robot
     Chunks.send(bus, np.tile([0.0, -0.05, 0.0], (40, 1)))
     listener.wait(lambda: max(abs(v) for v in listener.latest().dq) > 0.3, timeout=3)
-    t_sent = time.monotonic()
+    t_sent = time.time()  # the probe stamps arrivals with wall-clock time
     control(bus, "estop")
     t_event, event = listener.wait(lambda: listener.events("estop"), timeout=2)[0]
     assert event.held and t_event - t_sent < PERIOD
     settled = listener.wait(
         lambda: [s for t, s in list(listener.states) if t > t_event + 2 * PERIOD], timeout=2
     )
-    assert settled[0].mode == "estop" and max(abs(v) for v in settled[0].dq) < 0.01
+    assert settled[0].mode == m.RobotState.ESTOP and max(abs(v) for v in settled[0].dq) < 0.01
     refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
     status = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == refused], timeout=2)[0]
     assert status.executed == 0 and status.dropped == 1
     control(bus, "release")
-    listener.wait(lambda: listener.latest().mode == "running", timeout=2)
+    listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)
 
 
 def test_06_learner_liveliness_loss_holds_the_arm(robot):
@@ -208,19 +171,18 @@ def test_06_learner_liveliness_loss_holds_the_arm(robot):
     Robot.learner[0].close()  # the learner process goes away
     _, event = listener.wait(lambda: listener.events("liveliness")[before:], timeout=3)[0]
     assert "learner" in event.detail and event.held
-    listener.wait(lambda: listener.latest().mode == "held", timeout=2)
+    listener.wait(lambda: listener.latest().mode == m.RobotState.HELD, timeout=2)
     refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
     time.sleep(3 * PERIOD)
-    assert listener.latest().mode == "held"
+    assert listener.latest().mode == m.RobotState.HELD
     assert not [s for s in listener.status if s.chunk_seq == refused and s.executed > 0]
     Robot.learner[0] = Bus(open_session(ZenohConfig(connect=Robot.endpoint)), bus.robot)
     Robot.learner[0].declare_alive("learner")  # it restarts: the hold clears
     try:
-        listener.wait(lambda: listener.latest().mode == "running", timeout=3)
+        listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=3)
     except AssertionError as exc:
-        raise AssertionError(
-            f"mode {listener.latest().mode}; events {[e.kind for _, e in listener.safety][-6:]}"
-        ) from exc
+        kinds = [m.label(e, "kind") for _, e in listener.safety][-6:]
+        raise AssertionError(f"mode {m.label(listener.latest(), 'mode')}; events {kinds}") from exc
 
 
 def test_07_bad_bytes_are_reported_and_the_process_lives(robot):

@@ -1,23 +1,22 @@
 """Two ``adaptiveh router`` processes on different loopback ports; robot-io and the learner connect to
 different routers as clients and a short learning run completes through them."""
 
-import random
 import subprocess
 import sys
 import time
 
 import yaml
+from loopback import free_endpoint, unique_name
 from stack_helpers import learn_one_episode
 
 
 def test_two_routers_carry_a_run(tmp_path):
-    p1, p2 = random.sample(range(20000, 60000), 2)
-    e1, e2 = f"tcp/127.0.0.1:{p1}", f"tcp/127.0.0.1:{p2}"
+    e1, e2 = free_endpoint(), free_endpoint()
     r1 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e1])
     time.sleep(1.0)
     r2 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e2, "--connect", e1])
     cfg = yaml.safe_load(open("configs/sim.yaml"))
-    cfg["name"] = f"rt{random.randint(0, 10**6)}"
+    cfg["name"] = unique_name("rt")
     cfg.pop("vision")
     cfg["learner"].update(steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"))
     robot_cfg, learner_cfg = tmp_path / "robot.yaml", tmp_path / "learner.yaml"

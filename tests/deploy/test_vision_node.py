@@ -7,23 +7,22 @@ in-process sim camera (``camera: sim``, a replica posed from robot-io's messages
 
 from __future__ import annotations
 
-import random
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
 import pybullet as pb
 import pytest
-import yaml
+from bus_probe import BusProbe
+from loopback import free_port, unique_name
+from stack_helpers import running_part
 
 from deploy import messages as m
+from deploy.config import StackConfig
 from deploy.transport import Bus, ZenohConfig, open_session
-from deploy.vision_node import SimFramePublisher, frame_from_message, frame_message, load_vision_config
+from deploy.vision_node import SimFramePublisher, frame_from_message, frame_message
 from sim.panda_scene import PandaScene
 from vision.cameras.protocol import Frame
-from vision.config import Intrinsics
+from vision.config import Intrinsics, VisionConfig
 from vision.extrinsics import look_at
 
 LOST_AFTER = 0.3
@@ -40,63 +39,30 @@ VISION = {
 }
 
 
-class Inbox:
+class Inbox(BusProbe):
     def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.targets: list[tuple[float, m.Target]] = []
-        self.images: list[m.AnnotatedImage] = []
-        self.events: list[m.SafetyEvent] = []
+        super().__init__(bus)
+        self.targets = self.collect(m.TARGET)
+        self.images = self.collect(m.CAMERA_ANNOTATED, arrival=False)
+        self.events = self.collect(m.EVENTS_SAFETY, arrival=False)
         self.alive: set[str] = set()
-        bus.subscribe(m.TARGET, m.Target, lambda t: self._add(self.targets, (time.time(), t)))
-        bus.subscribe(m.CAMERA_ANNOTATED, m.AnnotatedImage, lambda i: self._add(self.images, i))
-        bus.subscribe(m.EVENTS_SAFETY, m.SafetyEvent, lambda e: self._add(self.events, e))
         bus.watch_alive(lambda name, up: self.alive.add(name) if up else self.alive.discard(name))
-
-    def _add(self, where: list, item: object) -> None:
-        with self.lock:
-            where.append(item)
-
-    def wait(self, pred, timeout: float = 10.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            with self.lock:
-                out = pred()
-            if out:
-                return out
-            time.sleep(0.01)
-        raise AssertionError(f"timed out after {timeout} s")
 
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
-    port = random.randint(20000, 60000)
-    name = f"v{random.randint(0, 10**9)}"
+    port = free_port()
+    name = unique_name("v")
     cfg = {"name": name, "zenoh": {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}, "vision": VISION}
-    path = tmp_path_factory.mktemp("vision") / "sim.yaml"
-    path.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "vision", "--config", str(path), "--log-level", "WARNING"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     inbox = Inbox(bus)
     scene = PandaScene(motion="slow", seed=5)
-    try:
-        inbox.wait(lambda: "vision" in inbox.alive, timeout=60)
-    except AssertionError:
-        proc.kill()
-        pytest.fail(f"vision did not come up:\n{proc.communicate()[0]}")
-    publisher = SimFramePublisher(bus, scene.client_id, load_vision_config(VISION))
-    yield bus, inbox, scene, publisher, proc
-    scene.close()
-    bus.close()
-    proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    tmp = tmp_path_factory.mktemp("vision")
+    with running_part("vision", cfg, tmp, lambda: inbox.wait(lambda: "vision" in inbox.alive, 60)) as proc:
+        publisher = SimFramePublisher(bus, scene.client_id, VisionConfig.model_validate(VISION))
+        yield bus, inbox, scene, publisher, proc
+        scene.close()
+        bus.close()
 
 
 def stream(scene: PandaScene, publisher: SimFramePublisher, seconds: float, rate: float = 10.0):
@@ -143,16 +109,18 @@ def test_02_bad_frames_give_events_and_the_process_survives(stack):
     good = publisher.camera.capture()
     raw = bus.session.declare_publisher(bus.key(m.CAMERA))
     zero = Frame(good.rgb, np.zeros_like(good.depth), good.intrinsics, time.time(), 900)
-    raw.put(frame_message(zero, 900).encode())  # all-zero depth
+    raw.put(frame_message(zero).SerializeToString())  # all-zero depth
     inbox.wait(lambda: any("all zero" in e.detail for e in inbox.events))
-    short = frame_message(good, 901)
-    raw.put(m.CameraFrame(**{**short.__dict__, "depth": short.depth[:-10]}).encode())  # wrong size
+    short = frame_message(good)
+    short.depth = short.depth[:-10]
+    raw.put(short.SerializeToString())  # wrong size
     inbox.wait(lambda: any("depth bytes" in e.detail for e in inbox.events))
     raw.put(b"\x93not a message")  # undecodable bytes
-    inbox.wait(lambda: any(e.kind == "bad_message" and "undecodable" in e.detail for e in inbox.events))
+    bad = m.SafetyEvent.BAD_MESSAGE
+    inbox.wait(lambda: any(e.kind == bad and "undecodable" in e.detail for e in inbox.events))
     with inbox.lock:
         kinds = list(inbox.events)
-    assert {e.kind for e in kinds} == {"bad_frame", "bad_message"}
+    assert {m.label(e, "kind") for e in kinds} == {"bad_frame", "bad_message"}
     assert all(e.detail.startswith("vision: ") for e in kinds)
     assert all(not e.held for e in kinds)
     n = len(inbox.targets)
@@ -189,11 +157,12 @@ def test_frame_message_round_trip():
         12.5,
         3,
     )
-    back = frame_from_message(m.decode(frame_message(frame, 7).encode(), m.CameraFrame))
+    back = frame_from_message(m.CAMERA.decode(frame_message(frame).SerializeToString()))
     assert back.intrinsics == k and back.stamp == 12.5 and np.array_equal(back.rgb, frame.rgb)
     assert np.abs(back.depth - frame.depth).max() <= 0.0005 + 1e-6
-    bad = m.CameraFrame(**{**frame_message(frame, 7).__dict__, "intrinsics": [-1.0, 11.0, 4.5, 3.5]})
-    with pytest.raises(m.MessageError, match="fx, fy must be > 0"):
+    bad = frame_message(frame)
+    bad.intrinsics[0] = -1.0
+    with pytest.raises(m.MessageError, match=r"(?m)^fx\n  Input should be greater than 0"):
         frame_from_message(bad)
 
 
@@ -222,18 +191,18 @@ class ScriptedCamera:
 def test_device_camera_path_reports_camera_errors_and_loses_target():
     """``camera: realsense`` nodes capture in their own thread; a dying camera gives camera_error
     events and a lost target on time, never a crash."""
-    from deploy.vision_node import VisionNode, VisionSettings
+    from deploy.vision_node import VisionNode
 
-    port = random.randint(20000, 60000)
-    name = f"d{random.randint(0, 10**9)}"
-    vision = load_vision_config({**VISION, "camera": "realsense"})
+    port = free_port()
+    name = unique_name("d")
+    vision = VisionConfig.model_validate({**VISION, "camera": "realsense"})
     with PandaScene(motion="static", seed=2) as scene:
         from vision.cameras.sim import camera_from_config
 
         render = camera_from_config(scene.client_id, vision)
         frames = [render.capture() for _ in range(10)]
     camera = ScriptedCamera(frames, failures=1000)
-    settings = VisionSettings(name, ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)), vision)
+    settings = StackConfig(name=name, zenoh=ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)), vision=vision)
     node = VisionNode(settings, camera=camera)
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     inbox = Inbox(bus)
@@ -241,7 +210,7 @@ def test_device_camera_path_reports_camera_errors_and_loses_target():
         inbox.wait(lambda: "vision" in inbox.alive)
         node.start()
         inbox.wait(lambda: any(t.valid for _, t in inbox.targets))
-        inbox.wait(lambda: any(e.kind == "camera_error" for e in inbox.events))
+        inbox.wait(lambda: any(e.kind == m.SafetyEvent.CAMERA_ERROR for e in inbox.events))
         with inbox.lock:
             last_valid = max(r for r, t in inbox.targets if t.valid)
         _, lost = inbox.wait(
@@ -250,7 +219,7 @@ def test_device_camera_path_reports_camera_errors_and_loses_target():
         assert lost.frame_stamp - last_valid <= LOST_AFTER + 0.3
         time.sleep(1.2)
         with inbox.lock:
-            errors = [e for e in inbox.events if e.kind == "camera_error"]
+            errors = [e for e in inbox.events if e.kind == m.SafetyEvent.CAMERA_ERROR]
         assert 1 <= len(errors) <= 3 and "more since the last report" in errors[-1].detail  # rate-limited
         assert node.frames == 10
     finally:
@@ -264,12 +233,13 @@ def test_sim_camera_renders_the_world_robot_io_publishes_and_says_when_it_stops(
     (this test publishes them, as robot-io does); targets match the truth of the world they were
     rendered from, stamped with when it was observed. When the messages stop, the camera reports
     camera_error and the target goes lost: never an old picture passed off as new."""
-    from deploy.vision_node import VisionNode, VisionSettings
+    from deploy.vision_node import VisionNode
 
-    port = random.randint(20000, 60000)
-    name = f"s{random.randint(0, 10**9)}"
-    vision = load_vision_config({**VISION, "camera": "sim"})
-    node = VisionNode(VisionSettings(name, ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",)), vision))
+    port = free_port()
+    name = unique_name("s")
+    vision = VisionConfig.model_validate({**VISION, "camera": "sim"})
+    zc = ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",))
+    node = VisionNode(StackConfig(name=name, zenoh=zc, vision=vision))
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     inbox = Inbox(bus)
     pub_state, pub_truth = bus.publisher(m.STATE), bus.publisher(m.TARGET_TRUTH)
@@ -284,15 +254,25 @@ def test_sim_camera_renders_the_world_robot_io_publishes_and_says_when_it_stops(
                 q, _ = scene.joint_state()
                 stamp = time.time()
                 truth_at[round(stamp, 6)] = scene.target.position.copy()
-                pub_state(m.RobotState(q=q.tolist(), dq=[0.0] * 7))
-                pub_truth(m.Target(position=scene.target.position.tolist(), valid=True, frame_stamp=stamp))
+                zero3 = [0.0] * 3
+                running = m.RobotState.RUNNING
+                pub_state(m.RobotState(q=q.tolist(), dq=[0.0] * 7, ee_pos=zero3, ee_vel=zero3, mode=running))
+                truth = m.Target(
+                    position=scene.target.position.tolist(),
+                    velocity=[0.0] * 3,
+                    covariance=[0.0] * 9,
+                    valid=True,
+                    frame_stamp=stamp,
+                    status=m.Target.TRACKING,
+                )
+                pub_truth(truth)
                 time.sleep(0.05)
         stopped = time.time()
-        inbox.wait(lambda: any(e.kind == "camera_error" for e in inbox.events))
+        inbox.wait(lambda: any(e.kind == m.SafetyEvent.CAMERA_ERROR for e in inbox.events))
         inbox.wait(lambda: any(r > stopped + LOST_AFTER and not t.valid for r, t in inbox.targets))
         with inbox.lock:
             targets = [t for _, t in inbox.targets]
-            errors = [e.detail for e in inbox.events if e.kind == "camera_error"]
+            errors = [e.detail for e in inbox.events if e.kind == m.SafetyEvent.CAMERA_ERROR]
     finally:
         node.stop()
         bus.close()

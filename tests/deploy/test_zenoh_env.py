@@ -3,26 +3,25 @@ scaling for the learner (a mismatch here once kept the stack from learning what 
 
 from __future__ import annotations
 
-import random
-
 import numpy as np
 import pytest
 import yaml
+from loopback import unique_name
 
-from deploy.learner_node import load_settings
+from deploy.config import load_stack_config
+from deploy.learner_node import env_settings
 from deploy.transport import Bus, ZenohConfig, open_session
 from deploy.zenoh_env import ZenohReachEnv
-from sim.reach import NSReachEnv
+from tasks.reach_env import NSReachEnv
 
 
-def test_sim_yaml_env_scales_states_like_the_in_process_env():
+def test_sim_yaml_env_scales_states_like_the_in_process_env(endpoint):
     cfg = yaml.safe_load(open("configs/sim.yaml"))
-    settings = load_settings("configs/sim.yaml")
-    port = random.randint(20000, 60000)
-    bus = Bus(open_session(ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",))), f"z{random.randint(0, 10**9)}")
+    settings = load_stack_config("configs/sim.yaml")
+    bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), unique_name("z"))
     inproc = NSReachEnv(motion=cfg["robot"]["target_motion"], seed=0)
     try:
-        env = ZenohReachEnv(bus, settings.env)
+        env = ZenohReachEnv(bus, env_settings(settings))
         for ours, theirs in zip(env.obs_bounds, inproc.obs_bounds, strict=True):
             np.testing.assert_allclose(ours, theirs)
         np.testing.assert_allclose(env.observation_space.low, inproc.observation_space.low)
@@ -38,5 +37,5 @@ def test_target_box_is_validated(tmp_path):
     cfg["learner"]["target_box"] = [[0.6, 0.0, 0.1], [0.4, 0.3, 0.5]]
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))
-    with pytest.raises(Exception, match="target_box: must be"):
-        load_settings(path)
+    with pytest.raises(Exception, match="learner.target_box: .*must be below hi"):
+        load_stack_config(path)

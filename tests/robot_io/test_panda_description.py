@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pybullet as pb
 
-from robot_io.description import PandaDescription
+from robot_io.description import RobotDescription
 from robot_io.kinematics import Kinematics
 from sim.panda_scene import PandaScene, panda_urdf_path
 
@@ -15,7 +15,7 @@ def test_urdf_comes_from_pybullet_data():
 
 
 def test_fk_agrees_within_1mm_over_100_random_configurations():
-    desc = PandaDescription()
+    desc = RobotDescription()
     kin = Kinematics(desc)
     model = desc.mujoco_model()
     data = mujoco.MjData(model)
@@ -43,10 +43,35 @@ def test_fk_agrees_within_1mm_over_100_random_configurations():
 
 
 def test_mujoco_form_is_generated_from_the_urdf():
-    desc = PandaDescription()
+    desc = RobotDescription()
     xml = desc.mujoco_xml()
     assert "package://" not in xml and "<visual" not in xml  # meshes stripped, kinematics kept
     model = desc.mujoco_model()
     assert model.nq == 7
     np.testing.assert_allclose(model.jnt_range[:, 0], desc.limits.lower)
     np.testing.assert_allclose(model.jnt_range[:, 1], desc.limits.upper)
+
+
+def test_robot_io_panda_model_is_the_scene_s_standalone_panda():
+    """sim cannot import robot_io, so a scene built without it carries its own Panda; they must agree."""
+    from typing import get_args
+
+    from robot_io.config import MotionPreset
+    from robot_io.description import MODELS, robot_model
+    from sim.panda_scene import MotionPreset as SceneMotionPreset
+    from sim.panda_scene import StandalonePanda
+
+    model, standalone = robot_model("panda"), StandalonePanda()
+    for field in ("urdf_path", "arm_joints", "finger_joints", "ee_link", "home_q"):
+        assert getattr(model, field) == getattr(standalone, field), field
+    assert set(get_args(MotionPreset)) == set(get_args(SceneMotionPreset))
+    assert set(MODELS) >= {"panda"}
+
+
+def test_unknown_robot_model_names_the_known_ones():
+    import pytest
+
+    from robot_io.description import robot_model
+
+    with pytest.raises(ValueError, match="panda"):
+        robot_model("ur5")

@@ -8,7 +8,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from deploy.cli import main
-from deploy.vision_node import load_settings
+from deploy.config import load_stack_config
 from vision.calibration import BoardView, CalibrationError, CharucoBoard, solve_eye_to_hand
 from vision.config import CalibrationConfig, Intrinsics
 from vision.extrinsics import (
@@ -95,7 +95,7 @@ def test_calibrate_command_in_simulation_writes_extrinsics_within_5mm_1deg(tmp_p
     assert main(["calibrate", "--config", str(path), "--views", "8", "--log-level", "WARNING"]) == 0
     out = capsys.readouterr().out
     assert "wrote vision.extrinsics" in out and "error vs the sim camera's true pose" in out
-    written = load_settings(path).vision
+    written = load_stack_config(path).vision
     T = pose_to_matrix(written.extrinsics)
     truth = pose_to_matrix(TRUE_POSE)
     assert translation_error(T, truth) < 0.005 and rotation_error_deg(T, truth) < 1.0

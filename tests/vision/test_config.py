@@ -6,23 +6,23 @@ from pathlib import Path
 
 import pytest
 
-from deploy.config import ConfigError, load_yaml
-from deploy.vision_node import load_vision_config
-from vision.config import Intrinsics, Pose
+from common.config import ConfigError, parse
+from deploy.config import load_stack_config
+from vision.config import Intrinsics, Pose, VisionConfig
 
 
 @pytest.mark.parametrize(
     "section, match",
     [
-        ({"camera": "kinect"}, "camera must be one of"),
-        ({"intrinsics": {"fx": -1}}, "fx, fy must be > 0"),
+        ({"camera": "kinect"}, "camera: Input should be 'sim', 'frames' or 'realsense'"),
+        ({"intrinsics": {"fx": -1}}, "intrinsics.fx: Input should be greater than 0"),
         ({"intrinsics": {"width": 320, "cx": 400}}, "principal point"),
         ({"extrinsics": {"quaternion": [0, 0, 0, 2]}}, "unit norm"),
-        ({"extrinsics": {"position": [1, 2]}}, "position: expected 3"),
+        ({"extrinsics": {"position": [1, 2]}}, "extrinsics.position: Tuple should have at least 3 items"),
         ({"detection": {"hsv_ranges": [[10, 0, 0, 5, 255, 255]]}}, "lower bound above upper"),
-        ({"detection": {"target_shape": "cone"}}, "target_shape must be one of"),
-        ({"tracking": {"lost_after_s": 0}}, "lost_after_s must be > 0"),
-        ({"realsense": {"fps": 25}}, "fps must be one of"),
+        ({"detection": {"target_shape": "cone"}}, "detection.target_shape: Input should be 'box'"),
+        ({"tracking": {"lost_after_s": 0}}, "tracking.lost_after_s: Input should be greater than 0"),
+        ({"realsense": {"fps": 25}}, "realsense.fps: Input should be 6, 15, 30, 60 or 90"),
         ({"sim": {"near": 2, "far": 1}}, "near < far"),
         ({"sim": {"noise": {"dropout": 1.5}}}, "dropout"),
         ({"colour": "red"}, "unknown key"),
@@ -30,12 +30,12 @@ from vision.config import Intrinsics, Pose
 )
 def test_bad_values_are_named(section, match):
     with pytest.raises(ConfigError, match=match):
-        load_vision_config(section)
+        parse(VisionConfig, section, "vision")
 
 
 @pytest.mark.parametrize("path", ["configs/sim.yaml", "configs/franka_realsense.yaml"])
 def test_shipped_configs_load(path):
-    vision = load_vision_config(load_yaml(Path(__file__).parents[2] / path)["vision"])
+    vision = load_stack_config(Path(__file__).parents[2] / path).vision
     assert vision.sim_pose() == vision.extrinsics or vision.sim.pose is not None
 
 

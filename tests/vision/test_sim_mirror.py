@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -72,7 +71,7 @@ def test_no_world_or_a_stale_world_is_a_camera_error_not_an_old_picture():
 
 
 def test_capture_keeps_the_configured_rate():
-    mirror = MirrorSimCamera(replace(CONFIG, rate_hz=10.0))
+    mirror = MirrorSimCamera(CONFIG.model_copy(update={"rate_hz": 10.0}))
     try:
         mirror.set_joints(np.zeros(7))
         t0 = time.monotonic()

@@ -11,8 +11,13 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from deploy import paper_bench as pb  # noqa: E402
 from deploy.cli import build_parser  # noqa: E402
+from experiments import stats  # noqa: E402
+from experiments.metrics import run_metrics  # noqa: E402
+from experiments.paper import main_paper  # noqa: E402
+from experiments.plan import ENVS, SPEED_ENVS, build_plan  # noqa: E402
+from experiments.report import finite_leaves  # noqa: E402
+from learner.registry import ALGOS  # noqa: E402
 
 FIGURES = ("main_results.png", "fast_comparison.png", "h_window.png", "summary_bars.png")
 TINY = {
@@ -32,7 +37,7 @@ def _finite_stat(stat: dict) -> None:
 @pytest.fixture(scope="module")  # the tiny pipeline takes 1-4 minutes: 32 runs, one process each
 def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("paper")
-    summary = pb.main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
+    summary = main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
     return out, summary
 
 
@@ -40,7 +45,7 @@ def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> No
     out, summary = tiny_run
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     assert (
-        summary["plan"]["runs_total"] == summary["plan"]["runs_finished"] == 2 * len(pb.ENVS) * len(pb.ALGOS)
+        summary["plan"]["runs_total"] == summary["plan"]["runs_finished"] == 2 * len(ENVS) * len(ALGOS)
     )
     files = sorted((out / "runs").glob("*.json"))
     assert len(files) == summary["plan"]["runs_total"]
@@ -64,10 +69,10 @@ def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> No
 def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> None:
     out, summary = tiny_run
     on_disk = json.loads((out / "summary.json").read_text())
-    assert pb.finite_leaves(on_disk) == []
-    assert set(on_disk["groups"]) == set(pb.ENVS)
+    assert finite_leaves(on_disk) == []
+    assert set(on_disk["groups"]) == set(ENVS)
     for env, by_algo in on_disk["groups"].items():
-        assert set(by_algo) == set(pb.ALGOS)
+        assert set(by_algo) == set(ALGOS)
         for algo, g in by_algo.items():
             assert g["n_runs"] == 2 and g["seeds"] == [0, 1], (env, algo)
             for key in ("return_mean", "final_return", "steps_to_threshold", "wall_s", "peak_rss_mb"):
@@ -77,7 +82,7 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
             assert curve["n"] == 2 and len(curve["steps"]) >= 1
             assert len(curve["steps"]) == len(curve["mean"]) == len(curve["lo"]) == len(curve["hi"])
             assert all(math.isfinite(v) for v in curve["mean"] + curve["lo"] + curve["hi"])
-    for env in pb.SPEED_ENVS:
+    for env in SPEED_ENVS:
         h = on_disk["H"][env]
         assert h["n"] == 2 and h["segments"] > 0
         _finite_stat(h["mean_H"])
@@ -94,7 +99,7 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
     assert sum(on_disk["code_commits"].values()) == len(on_disk["per_run"])  # every run names its commit
     assert "None" not in on_disk["code_commits"]
     table = (out / on_disk["tables"]).read_text()
-    assert table.count("| AdaptiveH |") == len(pb.ENVS) and "## Verdicts" in table and "nan" not in table
+    assert table.count("| AdaptiveH |") == len(ENVS) and "## Verdicts" in table and "nan" not in table
 
 
 def test_figures_are_real_pngs(tiny_run: tuple[Path, dict]) -> None:
@@ -111,7 +116,7 @@ def test_figures_are_real_pngs(tiny_run: tuple[Path, dict]) -> None:
 def test_finished_runs_are_never_recomputed_and_partial_sets_report(tiny_run: tuple[Path, dict]) -> None:
     out, _ = tiny_run
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")}
-    again = pb.main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
+    again = main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
     assert again["last_invocation"]["ran"] == 0
     assert again["last_invocation"]["skipped"] == len(stamps)
     assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")} == stamps
@@ -123,11 +128,11 @@ def test_finished_runs_are_never_recomputed_and_partial_sets_report(tiny_run: tu
     for name in stamps:
         if "__s1__" not in name and "reach_slow__td3" not in name:
             (partial / "runs" / name).write_bytes((out / "runs" / name).read_bytes())
-    summary = pb.main_paper(
+    summary = main_paper(
         quick=True, out=partial, jobs=1, seeds=2, steps=STEPS, report_only=True, progress=False
     )
     assert summary["last_invocation"]["ran"] == 0
-    assert len(summary["missing_runs"]) == len(pb.ENVS) * len(pb.ALGOS) + 1
+    assert len(summary["missing_runs"]) == len(ENVS) * len(ALGOS) + 1
     assert f"reach_slow__td3__s0__{STEPS}" in summary["missing_runs"]
     assert summary["groups"]["reach_slow"]["td3"]["n_runs"] == 0
     assert summary["groups"]["reach_slow"]["td3"]["final_return"]["mean"] is None
@@ -136,19 +141,19 @@ def test_finished_runs_are_never_recomputed_and_partial_sets_report(tiny_run: tu
     assert outcome == "missing"
     assert summary["verdicts"]["outperforms_td3_ddpg"]["verdict"] == "no data"  # one seed decides nothing
     assert all((partial / f).is_file() for f in FIGURES)
-    assert pb.finite_leaves(json.loads((partial / "summary.json").read_text())) == []
+    assert finite_leaves(json.loads((partial / "summary.json").read_text())) == []
 
 
 def test_run_metrics_definitions() -> None:
     # Episodes ending at steps 100..1000 with returns 10, 20, ..., 100; budget 1000, threshold 55.
     steps = list(range(100, 1001, 100))
     rets = [float(r) for r in range(10, 101, 10)]
-    m = pb.run_metrics(steps, rets, 1000, 55.0)
+    m = run_metrics(steps, rets, 1000, 55.0)
     assert m["return_mean"] == pytest.approx(55.0)
     assert m["final_return"] == pytest.approx(100.0)  # only the episode ending at 1000 is in the last 10%
     # trailing mean of 5 episodes first >= 55 at the 8th episode: (40+50+60+70+80)/5 = 60 (7th: 50)
     assert m["steps_to_threshold"] == 800 and m["reached"] is True
-    never = pb.run_metrics(steps, rets, 1000, 1e9)
+    never = run_metrics(steps, rets, 1000, 1e9)
     assert never["steps_to_threshold"] == 1000 and never["reached"] is False
     assert m["curve"][0] is None  # no episode has ended by step 20
     assert m["curve"][-1] == pytest.approx(80.0)
@@ -156,19 +161,19 @@ def test_run_metrics_definitions() -> None:
 
 def test_bootstrap_interval() -> None:
     x = [1.0, 2.0, 3.0, 4.0, 5.0]
-    s = pb.bootstrap_mean(x)
+    s = stats.bootstrap_mean(x)
     assert s["mean"] == 3.0 and 1.0 < s["lo"] < 3.0 < s["hi"] < 5.0
-    assert pb.bootstrap_mean([7.0]) == {"mean": 7.0, "lo": 7.0, "hi": 7.0, "n": 1}
-    assert pb.bootstrap_mean([])["mean"] is None
-    d = pb.bootstrap_diff([10.0, 11.0, 12.0], [1.0, 2.0, 3.0])
+    assert stats.bootstrap_mean([7.0]) == {"mean": 7.0, "lo": 7.0, "hi": 7.0, "n": 1}
+    assert stats.bootstrap_mean([])["mean"] is None
+    d = stats.bootstrap_diff([10.0, 11.0, 12.0], [1.0, 2.0, 3.0])
     assert d["diff"] == pytest.approx(9.0) and d["lo"] > 0
-    assert pb._sign(d) == "better" and pb._sign(d, higher_is_better=False) == "worse"
-    assert pb._sign(pb.bootstrap_diff([1.0, 5.0], [2.0, 4.0])) == "tie"
+    assert stats.outcome(d) == "better" and stats.outcome(d, higher_is_better=False) == "worse"
+    assert stats.outcome(stats.bootstrap_diff([1.0, 5.0], [2.0, 4.0])) == "tie"
 
 
 def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> None:
-    plan = pb.build_plan()
-    assert len(plan.runs) == 5 * len(pb.ENVS) * len(pb.ALGOS)
+    plan = build_plan()
+    assert len(plan.runs) == 5 * len(ENVS) * len(ALGOS)
     assert len(set(plan.runs)) == len(plan.runs)
     cheap = [r.algo in ("adaptiveh", "rkhs") and not r.env.startswith("reach") for r in plan.runs]
     n_cheap = sum(cheap)
@@ -177,14 +182,14 @@ def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> No
     assert [r.seed for r in rest] == sorted(r.seed for r in rest)
     first_seed1 = next(i for i, r in enumerate(rest) if r.seed == 1)
     assert {(r.env, r.algo) for r in rest[:first_seed1]} == {
-        (e, a) for e in pb.ENVS for a in pb.ALGOS if not (a in ("adaptiveh", "rkhs") and e != "reach_slow")
+        (e, a) for e in ENVS for a in ALGOS if not (a in ("adaptiveh", "rkhs") and e != "reach_slow")
     }
-    for env in pb.ENVS:
-        assert {r.steps for r in plan.runs if r.env == env} == {pb.ENVS[env].steps}
-    quick = pb.build_plan(quick=True)
-    assert quick.seeds == [0, 1] and all(r.steps == pb.ENVS[r.env].quick_steps for r in quick.runs)
+    for env in ENVS:
+        assert {r.steps for r in plan.runs if r.env == env} == {ENVS[env].steps}
+    quick = build_plan(quick=True)
+    assert quick.seeds == [0, 1] and all(r.steps == ENVS[r.env].quick_steps for r in quick.runs)
     with pytest.raises(ValueError, match="unknown env"):
-        pb.build_plan(envs=["nope"])
+        build_plan(envs=["nope"])
 
 
 def test_cli_registers_bench_paper() -> None:

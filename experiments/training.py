@@ -1,55 +1,52 @@
-"""In-process training runs: ``adaptiveh train`` and the benchmarks build on ``TrainSpec``/``train``.
+"""One in-process training run: ``adaptiveh train`` and the stack bench build on ``TrainSpec``/``train``.
 
-A run writes ``result.json`` (episodes, segments, retreat-statistic summary, timing), ``curve.png``
-and a checkpoint (``checkpoint.pkl``) every ``checkpoint_every`` steps and at the end, so an
-interrupted run resumes where it stopped and nothing learned is lost.
+A run writes ``result.json`` (episodes, segments, the run summary, timing), ``curve.png`` and a
+checkpoint (``checkpoint.pkl``) every ``checkpoint_every`` steps and at the end, so an interrupted run
+resumes where it stopped and nothing learned is lost.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from pydantic import Field, field_validator
 from tqdm import tqdm
 
-import sim  # noqa: F401  (registers the environments)
-from deploy.config import ConfigError, build, load_yaml
+import tasks  # noqa: F401  (registers every environment, NS Reach included)
+from common.config import ConfigError, Section, load_yaml, parse
 from learner.protocol import Agent, RunLog
-from learner.registry import ALGOS, make_agent
+from learner.registry import Algo, make_agent
+from learner.run_summary import summarize
 
 
-@dataclass
-class TrainSpec:
+class TrainSpec(Section):
     """One training run; every field can come from YAML (``--config``) or the command line."""
 
     env: str = "NSCartPoleContinuous-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    algo: str = "adaptiveh"
-    steps: int = 20_000
+    env_kwargs: dict[str, Any] = Field(default_factory=dict)
+    algo: Algo = "adaptiveh"
+    steps: int = Field(default=20_000, ge=1)
     seed: int = 0
-    agent: dict[str, Any] = field(default_factory=dict)
-    checkpoint_every: int = 5_000
+    agent: dict[str, Any] = Field(default_factory=dict)
+    checkpoint_every: int = Field(default=5_000, ge=1)
 
-    def __post_init__(self) -> None:
-        if self.algo not in ALGOS:
-            raise ValueError(f"algo: unknown {self.algo!r}; choose one of {list(ALGOS)}")
-        if self.env not in gym.registry:
-            raise ValueError(f"env: unknown environment {self.env!r}")
-        if self.steps < 1:
-            raise ValueError(f"steps: must be >= 1, got {self.steps}")
-        if self.checkpoint_every < 1:
-            raise ValueError(f"checkpoint_every: must be >= 1, got {self.checkpoint_every}")
+    @field_validator("env")
+    @classmethod
+    def _registered(cls, env: str) -> str:
+        if env not in gym.registry:
+            raise ValueError(f"unknown environment {env!r}")
+        return env
 
 
 def load_spec(path: str | Path | None, overrides: dict[str, Any]) -> TrainSpec:
     data = load_yaml(path) if path else {}
     data.update({k: v for k, v in overrides.items() if v is not None})
-    return build(TrainSpec, data, str(path or "train"))
+    return parse(TrainSpec, data, str(path or "train"))
 
 
 def make_env(spec: TrainSpec) -> gym.Env:
@@ -65,44 +62,6 @@ def build_agent(spec: TrainSpec, env: gym.Env) -> Agent:
         return make_agent(spec.algo, env, spec.seed, spec.agent)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"agent: {exc}") from None
-
-
-def summarize(log: RunLog) -> dict[str, Any]:
-    """Headline numbers of a run: returns, segment lengths, why segments ended, the statistic trace."""
-    rets = np.array([e.ret for e in log.episodes], float)
-    H = np.array([s.H for s in log.segments], float)
-    stats = np.array([x for s in log.segments for x in s.statistic], float)
-    tenth = max(1, len(rets) // 10)
-    out: dict[str, Any] = {
-        "episodes": len(rets),
-        "mean_return": float(rets.mean()) if len(rets) else None,
-        "final_return": float(rets[-tenth:].mean()) if len(rets) else None,
-        "best_return": float(rets.max()) if len(rets) else None,
-        "segments": len(H),
-        "reasons": {
-            r: sum(1 for s in log.segments if s.reason == r) for r in ("retreat", "h_max", "episode_end")
-        },
-    }
-    if len(H):
-        out["H"] = {
-            "mean": float(H.mean()),
-            "median": float(np.median(H)),
-            "p10": float(np.percentile(H, 10)),
-            "p90": float(np.percentile(H, 90)),
-        }
-    if len(stats):
-        out["statistic"] = {
-            "count": int(len(stats)),
-            "mean": float(stats.mean()),
-            "p10": float(np.percentile(stats, 10)),
-            "p50": float(np.median(stats)),
-            "p90": float(np.percentile(stats, 90)),
-            "threshold": float(log.segments[0].threshold),
-        }
-    successes = [e.success for e in log.episodes if e.success is not None]
-    if successes:
-        out["success_rate"] = float(np.mean(successes))
-    return out
 
 
 def plot_run(log: RunLog, title: str, path: Path) -> None:
@@ -177,8 +136,8 @@ def train(spec: TrainSpec, out: str | Path, resume: bool = True, progress: bool 
         bar.close()
     wall = time.perf_counter() - t0
     result = {
-        "spec": asdict(spec),
-        "agent_config": getattr(getattr(agent, "config", None), "to_dict", lambda: spec.agent)(),
+        "spec": spec.model_dump(),
+        "agent_config": agent.config.model_dump(mode="json"),  # type: ignore[attr-defined]
         "summary": summarize(agent.log),
         "wall_clock_s": wall,
         "steps_this_session": agent.log.global_step - start_step,

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from common.config import ConfigError
 from deploy.cli import main
-from deploy.config import ConfigError
-from deploy.training import TrainSpec, build_agent, load_spec, make_env, train
+from experiments.training import TrainSpec, build_agent, load_spec, make_env, train
 
 REPO = Path(__file__).resolve().parents[2]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -89,7 +89,7 @@ def test_train_resume_continues_identically(tmp_path):
     )
     first = train(spec, tmp_path / "split", progress=False)
     assert first["global_step"] == 500
-    spec.steps = 900
+    spec = spec.model_copy(update={"steps": 900})
     resumed = train(spec, tmp_path / "split", progress=False)
     assert resumed["steps_this_session"] == 400
     straight = train(spec, tmp_path / "straight", resume=False, progress=False)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_step_passive_checker
 
-import sim  # noqa: F401  (registers the environments)
+import tasks  # noqa: F401  (registers the environments, NS Reach included)
 from sim.panda_scene import TargetMotion
 
 

@@ -1,0 +1,1 @@
+"""Machinery shared by every layer (bottom of the import graph: imports nothing of ours)."""

@@ -1,0 +1,129 @@
+"""Config sections as typed pydantic models, loaded from YAML with errors that name the key path.
+
+Every section of every YAML file is a :class:`Section`: unknown keys are errors, values are coerced to
+the declared type (YAML reads ``5e-1`` as text; ``"0.5"`` becomes a float, ``12.5`` is not an int),
+ranges and closed sets are declared with ``Field``/``Literal`` rather than checked by hand, and a bad
+file raises :class:`ConfigError` whose message lists each offending ``key.path``, what was given and
+what is allowed.
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+
+S = TypeVar("S", bound=BaseModel)
+
+
+class ConfigError(ValueError):
+    """A config file or section that cannot be used; the message names the key path."""
+
+
+class Section(BaseModel):
+    """Base of every config section: frozen, no unknown keys, finite numbers, defaults validated too.
+
+    Like the frozen dataclasses it replaces, a section may be built with positional arguments in field
+    order (``Intrinsics(320, 240, ...)``). Built in code, a bad value raises pydantic's
+    ``ValidationError`` (a ``ValueError`` listing each key); :func:`parse` turns it into a ConfigError.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False)
+
+    def __init__(self, /, *args: Any, **data: Any) -> None:
+        if args:
+            names = list(type(self).model_fields)
+            if len(args) > len(names):
+                raise TypeError(f"{type(self).__name__} takes at most {len(names)} positional arguments")
+            twice = sorted(set(names[: len(args)]) & set(data))
+            if twice:
+                raise TypeError(f"{type(self).__name__} got {twice} both by position and by name")
+            data = {**dict(zip(names, args, strict=False)), **data}
+        super().__init__(**data)
+
+
+def _lo_below_hi(box: tuple[tuple[float, ...], tuple[float, ...]]) -> tuple[tuple[float, ...], ...]:
+    if any(lo >= hi for lo, hi in zip(*box, strict=True)):
+        raise ValueError(f"lo {list(box[0])} must be below hi {list(box[1])} on every axis")
+    return box
+
+
+Vec3 = Annotated[tuple[float, ...], Field(min_length=3, max_length=3)]
+"""Three finite numbers (a YAML list becomes a tuple)."""
+Box3 = Annotated[tuple[Vec3, Vec3], AfterValidator(_lo_below_hi)]
+"""``[[x, y, z] lo, [x, y, z] hi]`` with lo < hi on every axis."""
+
+
+def check_box(lo: tuple[float, ...], hi: tuple[float, ...]) -> None:
+    """The Box3 invariant for a section that keeps ``lo`` and ``hi`` as two keys."""
+    _lo_below_hi((lo, hi))
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """The top-level mapping of a YAML file, or a ConfigError saying why not."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such config file")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping, got {type(data).__name__}")
+    return data
+
+
+def _model_in(annotation: Any) -> type[BaseModel] | None:
+    """The section type inside an annotation (``Pose | None``, ``Annotated[Pose, ...]``), if any."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType, Annotated):
+        for arg in typing.get_args(annotation):
+            found = _model_in(arg)
+            if found is not None:
+                return found
+    return None
+
+
+def _allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """The field names of the (nested) section that owns the unknown key at ``loc``."""
+    current: type[BaseModel] | None = model
+    for part in loc[:-1]:
+        if current is None or part not in current.model_fields:
+            return []
+        current = _model_in(current.model_fields[part].annotation)
+    return sorted(current.model_fields) if current is not None else []
+
+
+def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> str:
+    """One line per error: ``where: key.path: what is wrong (got X)``, with allowed keys for unknown ones."""
+    prefix = f"{where}: " if where else ""
+    errors = exc.errors()
+    deeper = {tuple(e["loc"][:i]) for e in errors for i in range(len(e["loc"]))}
+    lines = []
+    for err in errors:
+        if err["type"] == "too_short" and tuple(err["loc"]) in deeper:
+            continue  # "0 items" only because an item inside failed, which is reported itself
+        path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        if err["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, tuple(err["loc"]))
+            lines.append(f"{prefix}{path}: unknown key; allowed: {allowed}")
+            continue
+        got = err.get("input")
+        shown = "" if isinstance(got, dict) else f" (got {got!r})"
+        # An invariant's own words, without pydantic's "Value error, " in front.
+        msg = str(err["ctx"]["error"]) if err["type"] == "value_error" else err["msg"]
+        lines.append(f"{prefix}{path}: {msg}{shown}")
+    return "\n".join(lines)
+
+
+def parse(model: type[S], data: Any, where: str) -> S:
+    """Validate ``data`` (None means all defaults) as ``model``; a ConfigError names every bad key."""
+    try:
+        return model.model_validate({} if data is None else data)
+    except ValidationError as exc:
+        raise ConfigError(describe(exc, model, where)) from None

@@ -1,0 +1,1 @@
+"""The generated protobuf module of ``adaptiveh.proto`` (``scripts/generate_schema.py`` makes it)."""

@@ -1,0 +1,299 @@
+from google.protobuf import descriptor_pb2 as _descriptor_pb2
+from google.protobuf.internal import containers as _containers
+from google.protobuf.internal import enum_type_wrapper as _enum_type_wrapper
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+LENGTH_FIELD_NUMBER: _ClassVar[int]
+length: _descriptor.FieldDescriptor
+LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
+length_multiple: _descriptor.FieldDescriptor
+
+class RobotState(_message.Message):
+    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len")
+    class Mode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        MODE_UNSPECIFIED: _ClassVar[RobotState.Mode]
+        RUNNING: _ClassVar[RobotState.Mode]
+        PAUSED: _ClassVar[RobotState.Mode]
+        HELD: _ClassVar[RobotState.Mode]
+        ESTOP: _ClassVar[RobotState.Mode]
+    MODE_UNSPECIFIED: RobotState.Mode
+    RUNNING: RobotState.Mode
+    PAUSED: RobotState.Mode
+    HELD: RobotState.Mode
+    ESTOP: RobotState.Mode
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    Q_FIELD_NUMBER: _ClassVar[int]
+    DQ_FIELD_NUMBER: _ClassVar[int]
+    EE_POS_FIELD_NUMBER: _ClassVar[int]
+    EE_VEL_FIELD_NUMBER: _ClassVar[int]
+    MODE_FIELD_NUMBER: _ClassVar[int]
+    CHUNK_SEQ_FIELD_NUMBER: _ClassVar[int]
+    QUEUE_LEN_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    q: _containers.RepeatedScalarFieldContainer[float]
+    dq: _containers.RepeatedScalarFieldContainer[float]
+    ee_pos: _containers.RepeatedScalarFieldContainer[float]
+    ee_vel: _containers.RepeatedScalarFieldContainer[float]
+    mode: RobotState.Mode
+    chunk_seq: int
+    queue_len: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ...) -> None: ...
+
+class Target(_message.Message):
+    __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status")
+    class Status(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        STATUS_UNSPECIFIED: _ClassVar[Target.Status]
+        TRACKING: _ClassVar[Target.Status]
+        COASTING: _ClassVar[Target.Status]
+        LOST: _ClassVar[Target.Status]
+        NONE: _ClassVar[Target.Status]
+    STATUS_UNSPECIFIED: Target.Status
+    TRACKING: Target.Status
+    COASTING: Target.Status
+    LOST: Target.Status
+    NONE: Target.Status
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    POSITION_FIELD_NUMBER: _ClassVar[int]
+    VELOCITY_FIELD_NUMBER: _ClassVar[int]
+    COVARIANCE_FIELD_NUMBER: _ClassVar[int]
+    VALID_FIELD_NUMBER: _ClassVar[int]
+    FRAME_STAMP_FIELD_NUMBER: _ClassVar[int]
+    STATUS_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    position: _containers.RepeatedScalarFieldContainer[float]
+    velocity: _containers.RepeatedScalarFieldContainer[float]
+    covariance: _containers.RepeatedScalarFieldContainer[float]
+    valid: bool
+    frame_stamp: float
+    status: Target.Status
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., position: _Optional[_Iterable[float]] = ..., velocity: _Optional[_Iterable[float]] = ..., covariance: _Optional[_Iterable[float]] = ..., valid: _Optional[bool] = ..., frame_stamp: _Optional[float] = ..., status: _Optional[_Union[Target.Status, str]] = ...) -> None: ...
+
+class CameraFrame(_message.Message):
+    __slots__ = ("seq", "stamp", "width", "height", "rgb", "depth", "depth_scale", "intrinsics", "frame_stamp")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    RGB_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_SCALE_FIELD_NUMBER: _ClassVar[int]
+    INTRINSICS_FIELD_NUMBER: _ClassVar[int]
+    FRAME_STAMP_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    width: int
+    height: int
+    rgb: bytes
+    depth: bytes
+    depth_scale: float
+    intrinsics: _containers.RepeatedScalarFieldContainer[float]
+    frame_stamp: float
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., rgb: _Optional[bytes] = ..., depth: _Optional[bytes] = ..., depth_scale: _Optional[float] = ..., intrinsics: _Optional[_Iterable[float]] = ..., frame_stamp: _Optional[float] = ...) -> None: ...
+
+class AnnotatedImage(_message.Message):
+    __slots__ = ("seq", "stamp", "jpeg", "detected")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    JPEG_FIELD_NUMBER: _ClassVar[int]
+    DETECTED_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    jpeg: bytes
+    detected: bool
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., jpeg: _Optional[bytes] = ..., detected: _Optional[bool] = ...) -> None: ...
+
+class ActionChunk(_message.Message):
+    __slots__ = ("seq", "stamp", "actions", "segment")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    ACTIONS_FIELD_NUMBER: _ClassVar[int]
+    SEGMENT_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    actions: _containers.RepeatedScalarFieldContainer[float]
+    segment: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ...) -> None: ...
+
+class ChunkStatus(_message.Message):
+    __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    CHUNK_SEQ_FIELD_NUMBER: _ClassVar[int]
+    EXECUTED_FIELD_NUMBER: _ClassVar[int]
+    DROPPED_FIELD_NUMBER: _ClassVar[int]
+    PREEMPTED_BY_FIELD_NUMBER: _ClassVar[int]
+    DONE_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    chunk_seq: int
+    executed: int
+    dropped: int
+    preempted_by: int
+    done: bool
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ...) -> None: ...
+
+class RetreatEvent(_message.Message):
+    __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step")
+    class Reason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        REASON_UNSPECIFIED: _ClassVar[RetreatEvent.Reason]
+        RETREAT: _ClassVar[RetreatEvent.Reason]
+        H_MAX: _ClassVar[RetreatEvent.Reason]
+        EPISODE_END: _ClassVar[RetreatEvent.Reason]
+    REASON_UNSPECIFIED: RetreatEvent.Reason
+    RETREAT: RetreatEvent.Reason
+    H_MAX: RetreatEvent.Reason
+    EPISODE_END: RetreatEvent.Reason
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    SEGMENT_FIELD_NUMBER: _ClassVar[int]
+    H_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    STATISTIC_FIELD_NUMBER: _ClassVar[int]
+    THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    segment: int
+    H: int
+    reason: RetreatEvent.Reason
+    statistic: _containers.RepeatedScalarFieldContainer[float]
+    threshold: float
+    global_step: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ...) -> None: ...
+
+class SafetyEvent(_message.Message):
+    __slots__ = ("seq", "stamp", "kind", "detail", "held")
+    class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        KIND_UNSPECIFIED: _ClassVar[SafetyEvent.Kind]
+        WORKSPACE: _ClassVar[SafetyEvent.Kind]
+        JOINT_LIMIT: _ClassVar[SafetyEvent.Kind]
+        VELOCITY_LIMIT: _ClassVar[SafetyEvent.Kind]
+        WATCHDOG: _ClassVar[SafetyEvent.Kind]
+        ESTOP: _ClassVar[SafetyEvent.Kind]
+        PAUSE: _ClassVar[SafetyEvent.Kind]
+        RELEASE: _ClassVar[SafetyEvent.Kind]
+        LIVELINESS: _ClassVar[SafetyEvent.Kind]
+        IK_UNREACHABLE: _ClassVar[SafetyEvent.Kind]
+        BAD_MESSAGE: _ClassVar[SafetyEvent.Kind]
+        DRIVER_ERROR: _ClassVar[SafetyEvent.Kind]
+        BAD_FRAME: _ClassVar[SafetyEvent.Kind]
+        CAMERA_ERROR: _ClassVar[SafetyEvent.Kind]
+    KIND_UNSPECIFIED: SafetyEvent.Kind
+    WORKSPACE: SafetyEvent.Kind
+    JOINT_LIMIT: SafetyEvent.Kind
+    VELOCITY_LIMIT: SafetyEvent.Kind
+    WATCHDOG: SafetyEvent.Kind
+    ESTOP: SafetyEvent.Kind
+    PAUSE: SafetyEvent.Kind
+    RELEASE: SafetyEvent.Kind
+    LIVELINESS: SafetyEvent.Kind
+    IK_UNREACHABLE: SafetyEvent.Kind
+    BAD_MESSAGE: SafetyEvent.Kind
+    DRIVER_ERROR: SafetyEvent.Kind
+    BAD_FRAME: SafetyEvent.Kind
+    CAMERA_ERROR: SafetyEvent.Kind
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    DETAIL_FIELD_NUMBER: _ClassVar[int]
+    HELD_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    kind: SafetyEvent.Kind
+    detail: str
+    held: bool
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., kind: _Optional[_Union[SafetyEvent.Kind, str]] = ..., detail: _Optional[str] = ..., held: _Optional[bool] = ...) -> None: ...
+
+class LearnerTelemetry(_message.Message):
+    __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
+    EPISODE_FIELD_NUMBER: _ClassVar[int]
+    EPISODE_RETURN_FIELD_NUMBER: _ClassVar[int]
+    SUCCESS_FIELD_NUMBER: _ClassVar[int]
+    PAUSED_FIELD_NUMBER: _ClassVar[int]
+    ALGO_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    global_step: int
+    episode: int
+    episode_return: float
+    success: bool
+    paused: bool
+    algo: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ...) -> None: ...
+
+class Control(_message.Message):
+    __slots__ = ("seq", "stamp", "command", "jog", "token")
+    class Command(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        COMMAND_UNSPECIFIED: _ClassVar[Control.Command]
+        PAUSE: _ClassVar[Control.Command]
+        RESUME: _ClassVar[Control.Command]
+        ESTOP: _ClassVar[Control.Command]
+        RELEASE: _ClassVar[Control.Command]
+        JOG: _ClassVar[Control.Command]
+    COMMAND_UNSPECIFIED: Control.Command
+    PAUSE: Control.Command
+    RESUME: Control.Command
+    ESTOP: Control.Command
+    RELEASE: Control.Command
+    JOG: Control.Command
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    COMMAND_FIELD_NUMBER: _ClassVar[int]
+    JOG_FIELD_NUMBER: _ClassVar[int]
+    TOKEN_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    command: Control.Command
+    jog: _containers.RepeatedScalarFieldContainer[float]
+    token: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., token: _Optional[str] = ...) -> None: ...
+
+class ResetRequest(_message.Message):
+    __slots__ = ("seq", "stamp", "seed")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    SEED_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    seed: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., seed: _Optional[int] = ...) -> None: ...
+
+class ResetReply(_message.Message):
+    __slots__ = ("seq", "stamp", "ok", "detail", "state")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    OK_FIELD_NUMBER: _ClassVar[int]
+    DETAIL_FIELD_NUMBER: _ClassVar[int]
+    STATE_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    ok: bool
+    detail: str
+    state: RobotState
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., ok: _Optional[bool] = ..., detail: _Optional[str] = ..., state: _Optional[_Union[RobotState, _Mapping]] = ...) -> None: ...
+
+class Rejected(_message.Message):
+    __slots__ = ("key", "error", "data")
+    KEY_FIELD_NUMBER: _ClassVar[int]
+    ERROR_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    key: str
+    error: str
+    data: bytes
+    def __init__(self, key: _Optional[str] = ..., error: _Optional[str] = ..., data: _Optional[bytes] = ...) -> None: ...

@@ -1,0 +1,136 @@
+"""One run of the plan, in its own process: build the env and agent, learn, write ``runs/<name>.json``.
+
+Each run records its wall-clock (of ``learn``), its process's peak RSS (``ru_maxrss``), the commit of
+the code it ran, and its episodes and segments, so the report is rebuilt from the run files alone.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from experiments.metrics import run_metrics
+from experiments.plan import ENVS, EnvSpec, RunSpec
+
+
+def make_env(env: EnvSpec, kwargs: dict[str, Any]) -> Any:
+    """The env built from ``kwargs``, with only its first ``reset`` seeded (see ``_SeedOnce``)."""
+    import gymnasium as gym
+
+    import tasks  # noqa: F401  (registers every environment, NS Reach included)
+
+    return _seed_once(gym.make(env.env_id, **kwargs))
+
+
+def _seed_once(env: Any) -> Any:
+    """Pass a ``reset`` seed through only the first time.
+
+    AdaptiveH reseeds every episode (``reset(seed=k)``), SB3 only the first; on NS Reach a seeded reset
+    also redraws the target's motion, so without this the algorithms would face different schedules.
+    Seeding once gives every algorithm at a given seed the same world.
+    """
+    import gymnasium as gym
+
+    class _SeedOnce(gym.Wrapper):
+        def __init__(self, inner: gym.Env) -> None:
+            super().__init__(inner)
+            self._seeded = False
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
+            if self._seeded:
+                seed = None
+            self._seeded = self._seeded or seed is not None
+            return self.env.reset(seed=seed, options=options)
+
+    return _SeedOnce(env)
+
+
+def execute_run(spec: RunSpec, out_dir: str) -> dict[str, Any]:
+    """Run one spec to completion and write ``runs/<name>.json``; errors come back, never raise."""
+    try:
+        return _execute(spec, Path(out_dir))
+    except Exception:  # noqa: BLE001 - a failed run is reported and stays missing, the others go on
+        return {"name": spec.name, "error": traceback.format_exc(limit=8)}
+
+
+def code_version() -> dict[str, Any]:
+    """The commit of the source tree this process imports, and whether its code/configs differ from it."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    paths = ["learner", "sim", "robot_io", "tasks", "configs", "experiments"]
+    try:
+        git = ["git", "-C", str(root)]
+        commit = subprocess.run(
+            [*git, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=20, check=True
+        )
+        dirty = subprocess.run(
+            [*git, "status", "--porcelain", "--", *paths],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None, "root": str(root)}
+    return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip()), "root": str(root)}
+
+
+def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
+    from learner.registry import make_agent
+
+    env_spec = ENVS[spec.env]
+    env = make_env(env_spec, spec.env_kwargs)
+    agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
+    t0 = time.perf_counter()
+    log = agent.learn(spec.steps)
+    wall = time.perf_counter() - t0
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    env.close()
+    eps = log.episodes
+    info_keys = sorted({k for e in eps for k in e.info})
+    result = {
+        "name": spec.name,
+        "env": spec.env,
+        "env_id": env_spec.env_id,
+        "preset": env_spec.preset,
+        "algo": spec.algo,
+        "seed": spec.seed,
+        "steps": spec.steps,
+        "global_step": int(log.global_step),
+        "config": spec.config,
+        "env_kwargs": spec.env_kwargs,
+        "threshold": env_spec.threshold,
+        "wall_s": wall,
+        "steps_per_s": log.global_step / wall if wall > 0 else None,
+        "peak_rss_mb": peak_kb / 1024.0,
+        "python": sys.version.split()[0],
+        "code": code_version(),
+        "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "metrics": run_metrics(
+            [e.global_step for e in eps], [e.ret for e in eps], spec.steps, env_spec.threshold
+        ),
+        "episodes": {
+            "global_step": [e.global_step for e in eps],
+            "ret": [e.ret for e in eps],
+            "length": [e.length for e in eps],
+            "success": [e.success for e in eps],
+            "info": {k: [e.info.get(k) for e in eps] for k in info_keys},
+        },
+        "segments": {
+            "global_step": [s.global_step for s in log.segments],
+            "H": [s.H for s in log.segments],
+            "reason": [s.reason for s in log.segments],
+        },
+    }
+    runs_dir = out_dir / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    tmp = runs_dir / f".{spec.name}.json.tmp"
+    tmp.write_text(json.dumps(result))
+    tmp.replace(runs_dir / f"{spec.name}.json")  # atomic: a run file exists only when complete
+    return {k: result[k] for k in ("name", "wall_s", "peak_rss_mb", "global_step")}

@@ -1,0 +1,51 @@
+"""Aggregates over seeds: means with 95% percentile-bootstrap intervals, and differences of two means."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+N_BOOT = 2000
+
+
+def bootstrap_mean(values: list[float] | np.ndarray, n_boot: int = N_BOOT, seed: int = 0) -> dict[str, Any]:
+    """Mean with a 95% percentile-bootstrap interval over seeds (degenerate interval for one value)."""
+    x = np.asarray([v for v in values if v is not None and np.isfinite(v)], float)
+    if len(x) == 0:
+        return {"mean": None, "lo": None, "hi": None, "n": 0}
+    if len(x) == 1:
+        return {"mean": float(x[0]), "lo": float(x[0]), "hi": float(x[0]), "n": 1}
+    rng = np.random.default_rng(seed)
+    boots = x[rng.integers(0, len(x), size=(n_boot, len(x)))].mean(axis=1)
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    return {"mean": float(x.mean()), "lo": float(lo), "hi": float(hi), "n": int(len(x))}
+
+
+def bootstrap_diff(a: list[float], b: list[float], n_boot: int = N_BOOT, seed: int = 0) -> dict[str, Any]:
+    """mean(a) - mean(b) with a 95% bootstrap interval, resampling the seeds of each side apart."""
+    xa = np.asarray([v for v in a if v is not None], float)
+    xb = np.asarray([v for v in b if v is not None], float)
+    if len(xa) == 0 or len(xb) == 0:
+        return {"diff": None, "lo": None, "hi": None, "n_a": len(xa), "n_b": len(xb)}
+    rng = np.random.default_rng(seed)
+    da = xa[rng.integers(0, len(xa), size=(n_boot, len(xa)))].mean(axis=1)
+    db = xb[rng.integers(0, len(xb), size=(n_boot, len(xb)))].mean(axis=1)
+    lo, hi = np.percentile(da - db, [2.5, 97.5])
+    return {
+        "diff": float(xa.mean() - xb.mean()),
+        "lo": float(lo),
+        "hi": float(hi),
+        "n_a": int(len(xa)),
+        "n_b": int(len(xb)),
+    }
+
+
+def outcome(d: dict[str, Any], higher_is_better: bool = True) -> str:
+    """better / worse / tie for side a, from the bootstrap interval of the difference."""
+    if d["diff"] is None:
+        return "missing"
+    if min(d["n_a"], d["n_b"]) < 2:
+        return "too few seeds"  # a one-seed "interval" has width zero and would decide anything
+    lo, hi = (d["lo"], d["hi"]) if higher_is_better else (-d["hi"], -d["lo"])
+    return "better" if lo > 0 else "worse" if hi < 0 else "tie"

@@ -1,0 +1,92 @@
+"""``summary.md`` and the printed verdicts: the README quotes them, generated so no number is hand-copied."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from experiments.plan import ALGO_LABELS
+
+
+def _fmt(stat: dict[str, Any], digits: int = 0) -> str:
+    if not stat or stat.get("mean") is None:
+        return "—"
+    if stat["n"] == 1:
+        return f"{stat['mean']:.{digits}f} (1 seed)"
+    return f"{stat['mean']:.{digits}f} [{stat['lo']:.{digits}f}, {stat['hi']:.{digits}f}]"
+
+
+def write_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
+    """``summary.md``: the tables and verdicts the README quotes, generated so no number is hand-copied."""
+    plan = summary["plan"]
+    lines = [
+        "# Paper experiments: results",
+        "",
+        f"Runs finished: {plan['runs_finished']} of {plan['runs_total']} "
+        f"({len(plan['seeds'])} seeds planned). Mean over seeds [95% bootstrap interval]; "
+        "returns are those of the episodes played while learning.",
+        "",
+        "| env (steps, threshold) | algorithm | seeds | return over run | final return (last 10%) "
+        "| steps to threshold | reached | wall-clock s | peak RSS MB |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for env, by_algo in summary["groups"].items():
+        e = plan["envs"][env]
+        for algo, g in by_algo.items():
+            frac = g["reached_fraction"]
+            reached = "—" if frac is None else f"{round(frac * g['n_runs'])}/{g['n_runs']}"
+            lines.append(
+                f"| {e['label']} ({e['steps_used']}, {e['threshold']:g}) | {ALGO_LABELS[algo]} "
+                f"| {g['n_runs']} | {_fmt(g['return_mean'], 1)} | {_fmt(g['final_return'], 1)} "
+                f"| {_fmt(g['steps_to_threshold'])} | {reached} | {_fmt(g['wall_s'])} "
+                f"| {_fmt(g['peak_rss_mb'])} |"
+            )
+    lines += [
+        "",
+        "## Window H of AdaptiveH (NS CartPole)",
+        "",
+        "| setting | seeds | segments | mean H per seed | median H per seed | p10 / p50 / p90 (pooled) "
+        "| segments ended by retreat |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for env, h in summary["H"].items():
+        if h.get("n"):
+            q = h["quantiles"]
+            lines.append(
+                f"| {plan['envs'][env]['label']} | {h['n']} | {h['segments']} | {_fmt(h['mean_H'], 2)} "
+                f"| {_fmt(h['median_H'], 1)} | {q['p10']:.0f} / {q['p50']:.0f} / {q['p90']:.0f} "
+                f"| {_fmt(h['retreat_fraction'], 2)} |"
+            )
+    lines += ["", "## Verdicts", "", format_verdicts(summary, markdown=True), ""]
+    if summary["missing_runs"]:
+        lines += [f"Missing runs ({len(summary['missing_runs'])}): " + ", ".join(summary["missing_runs"]), ""]
+    lines += [f"Code: {summary['code_commits']} (commit: runs)."]
+    if summary.get("dirty_runs"):
+        lines += [f"Runs from a modified or unknown tree: {', '.join(summary['dirty_runs'])}", ""]
+    if summary.get("stale_runs"):
+        lines += [
+            "Runs made under other hyperparameters than today's configs: " + ", ".join(summary["stale_runs"])
+        ]
+    path = out_dir / "summary.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:
+    """The verdicts with every comparison's difference and interval (plain text or a Markdown list)."""
+    plan = summary["plan"]
+    lines = [] if markdown else [f"runs finished: {plan['runs_finished']}/{plan['runs_total']}"]
+    bullet, sub = ("- ", "  - ") if markdown else ("", "  ")
+    for claim, v in summary["verdicts"].items():
+        metric = f" ({v['metric']})" if v.get("metric") else ""
+        verdict = f"**{v['verdict']}**" if markdown else v["verdict"]
+        lines.append(f"{bullet}{claim}{metric}: {verdict}")
+        for comp, d in v.get("comparisons", {}).items():
+            if d.get("diff") is None:
+                lines.append(f"{sub}{comp}: missing")
+                continue
+            lines.append(
+                f"{sub}{comp}: {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}], "
+                f"seeds {d['n_a']} vs {d['n_b']} -> {d['outcome']}"
+            )
+    return "\n".join(lines)

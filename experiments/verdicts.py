@@ -1,0 +1,77 @@
+"""The paper's claims, each tested per environment with bootstrap intervals of differences."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from experiments.plan import Plan
+from experiments.stats import bootstrap_diff, outcome
+
+
+def _vals(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key: str) -> list[float]:
+    return [g["metrics"][key] for g in plan.finished(runs, env, algo)]
+
+
+def _overall(comparisons: list[dict[str, Any]], higher_is_better: bool = True) -> str:
+    """Confirmed: every comparison significantly favours AdaptiveH; partly: some do; not: none do.
+
+    The note says how many point estimates lean the claimed way, so a non-significant trend is visible.
+    """
+    outcomes = [c["outcome"] for c in comparisons]
+    known = [c for c in comparisons if c["outcome"] in ("better", "tie", "worse")]
+    if not known:
+        return "no data"
+    wins = sum(c["outcome"] == "better" for c in known)
+    verdict = "confirmed" if wins == len(known) else "partly confirmed" if wins else "not confirmed"
+    leaning = sum((c["diff"] > 0) == higher_is_better and c["diff"] != 0 for c in known)
+    notes = [
+        f"{wins} of {len(known)} significant at 95%, {leaning} of {len(known)} point estimates lean that way"
+    ]
+    if len(known) < len(outcomes):
+        notes.append(f"{len(outcomes) - len(known)} comparisons lack runs")
+    return f"{verdict} ({'; '.join(notes)})"
+
+
+def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> dict[str, Any]:
+    """The paper's claims, each tested per environment with bootstrap intervals of differences.
+
+    A comparison is "better" only when the whole 95% interval of the difference favours AdaptiveH; a
+    claim is confirmed when every comparison is better, partly when some are, not when none are.
+    """
+    out: dict[str, Any] = {}
+    if "adaptiveh" not in plan.algos:
+        return out
+    for claim, key, rivals, higher in (
+        ("outperforms_td3_ddpg", "final_return", ("td3", "ddpg"), True),
+        ("outperforms_td3_ddpg_over_run", "return_mean", ("td3", "ddpg"), True),
+        ("faster_convergence", "steps_to_threshold", ("td3", "ddpg"), False),
+        ("outperforms_rkhs_fixed_h", "final_return", ("rkhs",), True),
+    ):
+        comps = {}
+        for env in plan.envs:
+            for rival in rivals:
+                if rival not in plan.algos:
+                    continue
+                d = bootstrap_diff(
+                    _vals(plan, runs, env, "adaptiveh", key), _vals(plan, runs, env, rival, key)
+                )
+                comps[f"{env}:{rival}"] = {**d, "outcome": outcome(d, higher)}
+        out[claim] = {
+            "metric": f"{key}, AdaptiveH minus rival",
+            "comparisons": comps,
+            "verdict": _overall(list(comps.values()), higher),
+        }
+    slow, fast = h.get("cartpole_slow", {}), h.get("cartpole_fast", {})
+    if slow.get("n") and fast.get("n"):
+        comps = {}  # slow minus fast > 0: H narrows when the world changes faster
+        for stat in ("mean", "median"):
+            d = bootstrap_diff(slow[f"per_seed_{stat}_H"], fast[f"per_seed_{stat}_H"])
+            comps[f"cartpole_slow-fast:{stat}_H"] = {**d, "outcome": outcome(d, True)}
+        out["h_narrows_when_faster"] = {
+            "metric": "per-seed mean and median H of AdaptiveH, slow minus fast (NS CartPole)",
+            "comparisons": comps,
+            "verdict": _overall(list(comps.values())),
+        }
+    else:
+        out["h_narrows_when_faster"] = {"verdict": "no data", "comparisons": {}}
+    return out

@@ -1,0 +1,55 @@
+"""The test's own peer on a robot's bus: what the parts publish, collected as it arrives.
+
+One helper for the Zenoh tests (the vision, robot-io and learner tests each had a copy). Each topic
+asked for fills a list (a deque where only the newest are kept) under one lock; ``wait`` polls a
+condition over them. Lists, not unbounded deques: a test may iterate one while Zenoh's thread
+appends. Arrival times are wall clock (``time.time()``): tests compare them with the messages' own
+stamps. Imported by name (tests/ is not a package).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, MutableSequence
+from typing import Any, TypeVar
+
+from deploy.messages import Message, Topic
+from deploy.transport import Bus
+
+M = TypeVar("M", bound=Message)
+
+
+class BusProbe:
+    """Collects the messages of the topics asked for on ``bus``; ``lock`` guards every collection."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.lock = threading.RLock()  # re-entrant: conditions in wait() may call helpers that lock
+
+    def collect(
+        self, topic: Topic[M], arrival: bool = True, maxlen: int | None = None
+    ) -> MutableSequence[Any]:
+        """Every message on ``topic`` from now on, as ``(arrival time, message)`` or, with
+        ``arrival=False``, the message alone; ``maxlen`` keeps only the newest."""
+        got: MutableSequence[Any] = [] if maxlen is None else deque(maxlen=maxlen)
+
+        def on(msg: M) -> None:
+            with self.lock:
+                got.append((time.time(), msg) if arrival else msg)
+
+        self.bus.subscribe(topic, on)  # the probe's one tie to decoding; bad bytes: the Bus counts them
+        return got
+
+    def wait(self, pred: Callable[[], Any], timeout: float = 10.0, what: str = "the condition") -> Any:
+        """``pred()``'s first truthy value (evaluated under the lock); AssertionError after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                out = pred()
+            if out:
+                return out
+            time.sleep(0.01)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+

@@ -1,0 +1,118 @@
+"""The stack config schema: every error names the key path and what is allowed; shipped configs load."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from common.config import ConfigError
+from deploy.config import StackConfig, load_stack_config
+from deploy.learner_node import env_settings
+from learner.config import AGENT_CONFIGS
+from learner.registry import ALGOS
+
+CONFIGS = Path(__file__).parents[2] / "configs"
+SIM = CONFIGS / "sim.yaml"
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    return path
+
+
+def _with(tmp_path: Path, section: str, key: str, value: object) -> Path:
+    """configs/sim.yaml with ``section.key`` set to ``value`` (``section`` empty: a top-level key)."""
+    data = yaml.safe_load(SIM.read_text())
+    (data[section] if section else data)[key] = value
+    return _write(tmp_path, yaml.safe_dump(data))
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "needles"),
+    [
+        # an unknown key: named with its path, and the keys allowed there
+        ("robot", "colour", "red", ["robot.colour: unknown key; allowed: [", "'watchdog_timeout_s'"]),
+        ("", "colour", "red", ["colour: unknown key; allowed: [", "'learner', 'monitor', 'name'"]),
+        # a wrong type
+        ("robot", "watchdog_timeout_s", "soon", ["robot.watchdog_timeout_s: Input should be a valid number"]),
+        ("robot", "physics_substeps", 12.5, ["robot.physics_substeps: Input should be a valid integer"]),
+        # out of range: the bound is in the message
+        ("robot", "max_step_m", 0.2, ["robot.max_step_m: Input should be less than or equal to 0.05"]),
+        ("learner", "steps", 0, ["learner.steps: Input should be greater than or equal to 1 (got 0)"]),
+        # a value outside a closed set: the allowed values are listed
+        ("robot", "backend", "ur5", ["robot.backend: Input should be 'pybullet' or 'franka' (got 'ur5')"]),
+        ("learner", "algo", "ppo", ["learner.algo: Input should be", "'adaptiveh'", "'ddpg'", "(got 'ppo')"]),
+        ("zenoh", "mode", "mesh", ["zenoh.mode: Input should be 'peer', 'client' or 'router' (got 'mesh')"]),
+        # nested sections and invariants keep their full path
+        ("learner", "target_box", [[0.6, 0, 0.1], [0.4, 0.3, 0.5]], ["learner.target_box:", "below hi"]),
+        ("learner", "agent", {"gamma": 2.0}, ["learner.agent:", "for algo adaptiveh: gamma:", "less than 1"]),
+        ("learner", "agent", {"gama": 0.5}, ["learner.agent:", "gama: unknown key; allowed: [", "'gamma'"]),
+        ("", "name", "a/b", ["name: String should match pattern"]),
+    ],
+)
+def test_a_bad_value_names_its_key_path_and_what_is_allowed(tmp_path, section, key, value, needles):
+    path = _with(tmp_path, section, key, value)
+    with pytest.raises(ConfigError) as err:
+        load_stack_config(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: ")
+    for needle in needles:
+        assert needle in message, (needle, message)
+
+
+def test_nested_keys_and_every_error_are_reported(tmp_path):
+    data = yaml.safe_load(SIM.read_text())
+    data["vision"]["detection"]["target_shape"] = "cone"
+    data["robot"]["ik"]["iterations"] = 0
+    message = str(pytest.raises(ConfigError, load_stack_config, _write(tmp_path, yaml.safe_dump(data))).value)
+    assert "vision.detection.target_shape: Input should be 'box', 'sphere' or 'point' (got 'cone')" in message
+    assert "robot.ik.iterations: Input should be greater than or equal to 1 (got 0)" in message
+
+
+def test_numbers_yaml_reads_as_text_are_coerced(tmp_path):
+    text = SIM.read_text().replace("watchdog_timeout_s: 0.5", "watchdog_timeout_s: 5e-1")
+    path = _write(tmp_path, text)
+    assert yaml.safe_load(text)["robot"]["watchdog_timeout_s"] == "5e-1"  # YAML 1.1 wants a dot in a float
+    assert load_stack_config(path).robot.watchdog_timeout_s == 0.5
+
+
+def test_overrides_are_checked_like_the_file():
+    assert load_stack_config(SIM, learner={"steps": 60, "algo": None}).learner.steps == 60
+    assert load_stack_config(SIM, learner={"steps": None}).learner.steps == 6000  # None: not overridden
+    with pytest.raises(ConfigError, match=r"learner\.steps: Input should be greater than or equal to 1"):
+        load_stack_config(SIM, learner={"steps": 0})
+
+
+def test_absent_parts_are_none_and_other_sections_default(tmp_path):
+    cfg = load_stack_config(_write(tmp_path, "name: lone\nrobot: {max_step_m: 0.03}\n"))
+    assert cfg.vision is None and cfg.monitor is None
+    assert cfg.robot.max_step_m == 0.03 and cfg == StackConfig(name="lone", robot={"max_step_m": 0.03})
+
+
+def test_the_learner_env_takes_the_robots_workspace_rate_and_step(tmp_path):
+    data = yaml.safe_load(SIM.read_text())
+    data["robot"].update(workspace={"lo": [0.3, -0.3, 0.1], "hi": [0.7, 0.3, 0.6]}, max_step_m=0.02)
+    data["robot"]["control_rate_hz"] = 10.0
+    env = env_settings(load_stack_config(_write(tmp_path, yaml.safe_dump(data))))
+    assert (env.workspace_lo, env.workspace_hi) == ((0.3, -0.3, 0.1), (0.7, 0.3, 0.6))
+    assert (env.max_step_m, env.control_rate_hz) == (0.02, 10.0)
+
+
+def _stack_configs() -> list[Path]:
+    """Every YAML in configs/ that describes a stack (the training-run files have ``env:`` instead)."""
+    return sorted(p for p in CONFIGS.glob("*.yaml") if "env" not in yaml.safe_load(p.read_text()))
+
+
+def test_every_shipped_stack_config_loads():
+    paths = _stack_configs()
+    assert {"sim.yaml", "franka_realsense.yaml"} <= {p.name for p in paths}
+    for path in paths:
+        cfg = load_stack_config(path)
+        assert cfg.vision is not None and cfg.monitor is not None, path
+
+
+def test_every_algo_has_its_agent_section():
+    assert sorted(AGENT_CONFIGS) == sorted(ALGOS)

@@ -1,0 +1,71 @@
+"""The typed bus on real Zenoh sessions: a topic carries its one type, the publisher stamps ``seq`` and
+``stamp``, bad bytes are counted and reported (never raised into Zenoh), a queryable answers typed."""
+
+import threading
+import time
+
+import pytest
+from loopback import unique_name
+
+from deploy import messages as m
+from deploy.transport import Bus, ZenohConfig, open_session
+
+
+@pytest.fixture
+def buses(endpoint):
+    name = unique_name("tr")
+    a = Bus(open_session(ZenohConfig(listen=(endpoint,))), name)
+    b = Bus(open_session(ZenohConfig(connect=(endpoint,))), name)
+    yield a, b
+    b.close()
+    a.close()
+
+
+def _wait(pred, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_publisher_stamps_and_subscriber_decodes(buses):
+    a, b = buses
+    got, bad = [], []
+    b.subscribe(m.CHUNK_STATUS, got.append, on_bad=lambda topic, exc: bad.append((topic, str(exc))))
+    pub = a.publisher(m.CHUNK_STATUS, first_seq=41)
+    time.sleep(0.3)  # let the subscription reach the publisher's session
+    before = time.time()
+    seqs = [pub.put(m.ChunkStatus(chunk_seq=i, preempted_by=-1)) for i in range(3)]
+    a.session.put(a.key(m.CHUNK_STATUS), b"\xff\xff not protobuf")
+    assert _wait(lambda: len(got) == 3 and bad)
+    assert seqs == [41, 42, 43] and [s.seq for s in got] == seqs
+    assert all(before <= s.stamp <= time.time() for s in got)
+    assert bad[0][0] == "cmd/status" and "ChunkStatus: undecodable" in bad[0][1]
+    assert b.bad_messages == {"cmd/status": 1}
+
+
+def test_a_topic_refuses_another_type(buses):
+    a, _ = buses
+    pub = a.publisher(m.CMD_CHUNK)
+    with pytest.raises(TypeError, match="cmd/chunk carries ActionChunk, not Control"):
+        pub.put(m.Control(command=m.Control.ESTOP, jog=[0, 0, 0]))
+
+
+def test_queryable_answers_typed_and_refuses_bad_requests(buses):
+    a, b = buses
+    seen = threading.Event()
+
+    def on_reset(req: m.ResetRequest) -> m.ResetReply:
+        seen.set()
+        return m.ResetReply(ok=req.seed == 5, detail=f"seed {req.seed}")
+
+    a.queryable(m.RESET, on_reset)
+    time.sleep(0.3)
+    reply = b.query(m.RESET, m.ResetRequest(seed=5), timeout=5)
+    assert isinstance(reply, m.ResetReply) and reply.ok and reply.detail == "seed 5" and reply.stamp > 0
+    replies = list(b.session.get(b.key(m.RESET), payload=b"\xff\xff", timeout=5))
+    assert replies and replies[0].err is not None
+    assert "ResetRequest: undecodable" in replies[0].err.payload.to_bytes().decode()
+    assert a.bad_messages == {"reset": 1}
