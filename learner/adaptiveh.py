@@ -6,6 +6,17 @@ functional gradient ``g_t = c · Â_t · score(s_t, a_t)`` (eq. 8, ``c = 1/(1-γ
 advantage — a TD error for the default value critic, i.e. Q̂ with the state baseline ``V`` removed,
 which keeps the gradient unbiased), and EVAL the retreat statistic. A retreat, ``h_max`` or the episode's
 end closes the segment: UPDATE ``h`` with the segment's gradients, SPARSIFY, and open a new segment.
+
+With ``execution: plan`` a segment is a committed plan (``learner.plans``): at its first state the
+segment's policy samples up to ``h_max`` (fixed-H: ``fixed_h``) actions over the states the env's
+nominal model predicts, and they play without waiting for the learner; the segment's end re-plans and
+the new plan preempts what is left. Every executed step is learned from as it happens. The score of
+an action planned at a predicted state ``ŝ_i`` but executed at ``s_i`` is taken at the state it
+acted in, ``Σ⁻¹(a_i - h(s_i))`` with the unclipped sample, as an off-policy actor update without
+importance weights: the critic's TD error measures the action's consequence at ``s_i``, and credit
+goes to the state where it happened, not to a predicted state the world may never have visited. When
+the model is right (``ŝ_i = s_i``) it is the on-policy score of the closed loop; fixed H = 1 in plan
+mode is the closed-loop learner.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
+from learner.plans import Plan, PlanChannel, QueuedChannel, rollout
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.retreat import RetreatCheck, default_threshold
@@ -87,7 +99,24 @@ class AdaptiveH:
         self._ep_return = 0.0
         self._ep_len = 0
         self._episode_seed = seed
+        self.channel: PlanChannel | None = None
+        if cfg.execution == "plan":
+            self.model, self.channel = self._plan_execution(env)
+        self._plan: Plan | None = None  # the open segment's plan
+        self._plans: dict[int, Plan] = {}  # recent plans by id: with latency the previous one still plays
+        self._next_plan_id = 0
 
+    def _plan_execution(self, env: gym.Env):
+        """(world model, channel): the env's ``predict_next``; the env itself when it plays plans (a
+        robot over Zenoh), else a queue in front of it."""
+        base = env.unwrapped
+        model = getattr(base, "predict_next", None)
+        if model is None:
+            name = type(base).__name__
+            raise ValueError(f"execution: plan needs the env's world model; {name} has no predict_next")
+        if all(callable(getattr(base, name, None)) for name in ("send", "advance", "queued")):
+            return model, base
+        return model, QueuedChannel(env, self.config.latency_steps)
     # -- acting ---------------------------------------------------------------------------------
     def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         s = self.normalize(obs)
@@ -105,6 +134,8 @@ class AdaptiveH:
 
     def step_env(self) -> SegmentRecord | None:
         """One environment step; returns the segment record when this step closed a segment."""
+        if self.channel is not None:
+            return self._step_plan()
         if self._obs is None:
             self._reset_episode()
         obs = self._obs
@@ -123,6 +154,52 @@ class AdaptiveH:
         # else: keep acting from the last finite observation; a NaN state never reaches the policy
         return record
 
+    # -- plan execution -------------------------------------------------------------------------
+    def _make_plan(self, obs: np.ndarray) -> Plan:
+        """Sample the segment's actions over model-predicted states, from where the plan will start:
+        after the actions still queued ahead of it (``latency_steps``) play out, as the model sees it."""
+        o = rollout(self.model, obs, self.channel.queued(self.config.latency_steps))
+        predicted, actions, raws = [o], [], []
+        for _ in range(self.segment_limit):
+            a, raw = self.policy.sample(self.normalize(o), self.rng)
+            o = self.model(o, a)
+            actions.append(a)
+            raws.append(raw)
+            predicted.append(o)
+        plan = Plan(self._next_plan_id, np.asarray(actions), np.asarray(raws), np.asarray(predicted))
+        self._next_plan_id += 1
+        self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {plan.plan_id: plan}
+        return plan
+
+    def _step_plan(self) -> SegmentRecord | None:
+        """One control step of the channel: (re)plan when no segment is open, learn from what ran."""
+        if self._obs is None:
+            self._reset_episode()
+        if self._plan is None:
+            self._plan = self._make_plan(self._obs)
+            self.channel.send(self._plan)
+        s = self.normalize(self._obs)
+        step = self.channel.advance()
+        plan = self._plans.get(step.plan_id)
+        raw = plan.raw[step.index] if plan is not None else np.asarray(step.action, float)
+        predicted = reached = None
+        if plan is self._plan and np.all(np.isfinite(step.obs)):
+            predicted, reached = self.normalize(plan.predicted[step.index + 1]), self.normalize(step.obs)
+        self.log.global_step += 1
+        self._ep_return += float(step.reward)
+        self._ep_len += 1
+        episode_over = step.terminated or step.truncated
+        record = self._learn_from(
+            s, raw, step.reward, step.obs, step.terminated, episode_over, predicted, reached
+        )
+        if record is not None:
+            self._plan = None  # the segment closed: the next step re-plans and preempts the rest
+        if episode_over:
+            self._finish_episode(step.info)
+        elif np.all(np.isfinite(step.obs)):
+            self._obs = np.asarray(step.obs, float)
+        return record
+
     def _learn_from(
         self,
         s: np.ndarray,
@@ -131,6 +208,8 @@ class AdaptiveH:
         next_obs: np.ndarray,
         terminated: bool,
         episode_over: bool,
+        predicted: np.ndarray | None = None,
+        reached: np.ndarray | None = None,
     ) -> SegmentRecord | None:
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
@@ -146,7 +225,7 @@ class AdaptiveH:
             return self._close_segment("retreat")
         if norm > self.config.max_grad_norm:
             g *= self.config.max_grad_norm / norm
-        retreat = self.retreat.push(s, g)
+        retreat = self.retreat.push(s, g, predicted, reached)
         if retreat:
             return self._close_segment("retreat")
         if len(self.retreat.states) >= self.segment_limit:
@@ -173,7 +252,8 @@ class AdaptiveH:
         return record
 
     def _reset_episode(self) -> None:
-        obs, _ = self.env.reset(seed=self._episode_seed)
+        obs, _ = (self.channel or self.env).reset(seed=self._episode_seed)
+        self._plan = None
         self._episode_seed += 1
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0
@@ -192,6 +272,7 @@ class AdaptiveH:
             )
         )
         self._obs = None
+        self._plan = None
 
     # -- checkpoints ----------------------------------------------------------------------------
     def state_dict(self) -> dict:

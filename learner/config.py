@@ -39,6 +39,10 @@ class AdaptiveHConfig(Section):
     weight_decay: float = Field(1e-3, ge=0)
     max_grad_norm: float = Field(100.0, gt=0)
     use_discount_factor: bool = True  # the paper's 1/(1-γ) in eq. 8
+    # closed_loop: every action sampled at the state it acts in. plan: a segment is a committed plan
+    # (learner/plans.py) of up to h_max (AdaptiveH) or fixed_h (RKHS) actions over model-predicted states.
+    execution: Literal["closed_loop", "plan"] = "closed_loop"
+    latency_steps: int = Field(0, ge=0)  # plan mode in-process: a new plan takes effect this many steps late
 
 
 class SB3Config(Section):

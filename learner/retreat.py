@@ -30,6 +30,12 @@ Exploration noise averages out; a systematic change of the gradient rotates ``G`
   projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H ≥ 1/2``. Measured, it acts as a timer: each step
   shrinks the ratio by ``1-λ`` and local agreement adds little against the global norm, so
   ``H ≈ ln 2 / λ`` whatever the world does.
+- ``plan`` (for plan execution, ``learner.plans``): the same inner product taken where plan and world
+  can disagree, between the gradient at the state the plan predicted and at the state reached,
+  ``k(ŝ_i,s_i) G(ŝ_i)ᵀG(s_i) / ‖G(ŝ_i)‖²`` against the same threshold. A plan made from a snapshot of
+  the world fails it when the world has left the kernel's reach of what the plan assumed, or when the
+  ascent directions there disagree; ``local`` compares actual states only and cannot see a plan going
+  stale. Without a plan (closed loop) it never fires.
 All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = Σ_ab k(s_a,s_b) g_aᵀg_b``.
 """
 
@@ -42,7 +48,7 @@ import numpy as np
 from learner.dictionary import RKHSFunction
 from learner.kernels import GaussianKernel
 
-RetreatMode = Literal["local", "smoothed", "literal", "off"]
+RetreatMode = Literal["local", "plan", "smoothed", "literal", "off"]
 MODES: tuple[str, ...] = get_args(RetreatMode)
 
 
@@ -56,7 +62,7 @@ def rkhs_inner(
 def default_threshold(mode: str, kernel: GaussianKernel, epsilon: float) -> float:
     if mode == "literal":
         return kernel.normaliser_z * epsilon / 2.0
-    if mode == "local":
+    if mode in ("local", "plan"):
         return min(kernel.normaliser_z / 2.0, 0.5)
     return 0.5
 
@@ -89,8 +95,18 @@ class RetreatCheck:
         self.states, self.grads, self.trace = [], [], []
         self._snapshot = None
 
-    def push(self, s: np.ndarray, g: np.ndarray) -> bool:
-        """Record a step; True when the retreat condition fails (statistic below threshold)."""
+    def push(
+        self,
+        s: np.ndarray,
+        g: np.ndarray,
+        predicted: np.ndarray | None = None,
+        reached: np.ndarray | None = None,
+    ) -> bool:
+        """Record a step; True when the retreat condition fails (statistic below threshold).
+
+        ``predicted``/``reached``: the (normalised) state the running plan predicted after this step and
+        the one reached, for mode ``plan``.
+        """
         self.states.append(s)
         self.grads.append(g)
         if self.mode == "off":
@@ -101,6 +117,8 @@ class RetreatCheck:
             stat = self._literal()
         elif self.mode == "local":
             stat = self._local(s, g)
+        elif self.mode == "plan":
+            stat = self._plan(s, g, predicted, reached)
         else:
             stat = self._smoothed(s, g)
         if stat is None:
@@ -138,6 +156,18 @@ class RetreatCheck:
         if n0 <= 1e-300:
             return None  # no gradient estimate at s0 yet
         return self.kernel.pair(self.states[0], s) * float(d0 @ di) / n0
+
+    def _plan(
+        self, s: np.ndarray, g: np.ndarray, predicted: np.ndarray | None, reached: np.ndarray | None
+    ) -> float | None:
+        self._update_field(g, s)
+        if predicted is None or reached is None:
+            return None  # no plan running: nothing was assumed
+        dp, dr = self.field(predicted), self.field(reached)
+        n = float(dp @ dp)
+        if n <= 1e-300:
+            return None  # no gradient estimate where the plan went yet
+        return self.kernel.pair(predicted, reached) * float(dp @ dr) / n
 
     def state_dict(self) -> dict:
         return {

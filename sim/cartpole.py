@@ -85,6 +85,11 @@ class NSCartPoleContinuous(gym.Env):
         truncated = self.steps >= self.max_steps and not terminated
         return self.state.astype(np.float32), 1.0, terminated, truncated, {"gravity": self.gravity}
 
+    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The plan model: the nominal dynamics (default gravity), never the drift."""
+        a = float(np.clip(np.asarray(action, float).reshape(-1)[0], -1.0, 1.0))
+        return self.dynamics(np.asarray(obs, float), a * self.force_mag, self.gravity_default)
+
     def dynamics(self, state: np.ndarray, force: float, gravity: float) -> np.ndarray:
         x, x_dot, theta, theta_dot = state
         total_mass = self.masspole + self.masscart

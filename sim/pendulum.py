@@ -79,18 +79,27 @@ class NSPendulum(gym.Env):
         self._history.clear()
         return self._observe(), self._info()
 
+    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The plan model: the nominal dynamics on the observed angle, no noise, no delay."""
+        c, s, thdot = np.asarray(obs, float)
+        th = np.arctan2(s, c)
+        u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -self.max_torque, self.max_torque))
+        th, thdot = self._dynamics(th, thdot, u)
+        return np.array([np.cos(th), np.sin(th), thdot])
+
+    def _dynamics(self, th: float, thdot: float, u: float) -> tuple[float, float]:
+        accel = 3 * self.g / (2 * self.length) * np.sin(th) + 3.0 / (self.m * self.length**2) * u
+        newthdot = thdot + accel * self.dt
+        newthdot = float(np.clip(newthdot, -self.max_speed, self.max_speed))
+        return th + newthdot * self.dt, newthdot
+
     def step(self, action):
         if self.state is None:
             raise RuntimeError("call reset() before step()")
         u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -self.max_torque, self.max_torque))
         th, thdot = self.state
         cost = angle_normalize(th) ** 2 + 0.1 * thdot**2 + 0.001 * u**2
-        newthdot = (
-            thdot
-            + (3 * self.g / (2 * self.length) * np.sin(th) + 3.0 / (self.m * self.length**2) * u) * self.dt
-        )
-        newthdot = float(np.clip(newthdot, -self.max_speed, self.max_speed))
-        self.state = np.array([th + newthdot * self.dt, newthdot])
+        self.state = np.array(self._dynamics(th, thdot, u))
         self.noise_schedule.advance()
         self.steps += 1
         truncated = self.steps >= self.max_steps

@@ -62,3 +62,16 @@ def reach_reward(distance: float) -> float:
 def reach_success(distance: float) -> bool:
     """Within ``SUCCESS_M`` of the target."""
     return distance < SUCCESS_M
+
+
+def predict_reach(obs: np.ndarray, action: np.ndarray, dt: float, max_step: float = MAX_STEP_M) -> np.ndarray:
+    """The reach task's world model, one control period ahead: the end effector moves by the (clipped)
+    action, the target keeps its estimated velocity. It knows nothing of the workspace walls, the IK or
+    the target's turns: what a plan made from it assumes, and what the retreat checks against."""
+    obs, action = np.asarray(obs, float), np.clip(np.asarray(action, float), -max_step, max_step)
+    nxt = obs.copy()
+    nxt[0:3] = obs[0:3] + action
+    nxt[3:6] = action / dt
+    nxt[6:9] = obs[6:9] + obs[9:12] * dt
+    nxt[12:15] = nxt[6:9] - nxt[0:3]
+    return nxt

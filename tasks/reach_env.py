@@ -19,6 +19,7 @@ from robot_io.config import RobotConfig
 from robot_io.controller import RobotController
 from tasks.reach import (
     MAX_STEP_M,
+    predict_reach,
     reach_distance,
     reach_observation,
     reach_observation_bounds,
@@ -95,6 +96,10 @@ class NSReachEnv(gym.Env):
         terminated = bool(self.terminate_on_success and info["success"])
         truncated = self._steps >= self.max_episode_steps
         return obs, reach_reward(distance), terminated, truncated, info
+
+    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The plan model (``tasks.reach.predict_reach``): what a plan made now assumes."""
+        return predict_reach(obs, action, self.config.period)
 
     def close(self) -> None:
         self.arm.close()

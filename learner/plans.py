@@ -1,0 +1,127 @@
+"""Plan execution: a segment is a committed action plan that plays while the learner learns.
+
+At a segment's first state the agent plans up to ``H`` actions with the segment's policy over states
+that a model of the world *as believed then* predicts (``env.unwrapped.predict_next``: NS Reach moves
+the end effector by the action and the target at its estimated velocity; NS CartPole and NS Pendulum
+use their nominal dynamics, default gravity and no noise, never the drift). The plan then plays one
+action per control step without waiting for the learner; a newer plan preempts what is left of the
+old one. A :class:`PlanChannel` is where plans play: :class:`QueuedChannel` in-process (a queue in
+front of a gymnasium env, with an optional learner latency), or a robot over Zenoh
+(``deploy.zenoh_env.ZenohReachEnv``), which reports the same way.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass
+class Plan:
+    """``actions[i]`` (clipped to the action box) was planned at the predicted observation ``predicted[i]``;
+    ``predicted[i + 1]`` is where the model expects it to lead. ``raw`` keeps the unclipped samples."""
+
+    plan_id: int
+    actions: np.ndarray
+    raw: np.ndarray
+    predicted: np.ndarray  # len(actions) + 1 observations
+
+
+@dataclass
+class Executed:
+    """One control step of a channel: which plan's action ran (``plan_id`` -1: none, the arm held)."""
+
+    plan_id: int
+    index: int
+    action: np.ndarray
+    obs: np.ndarray
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class PlanChannel(Protocol):
+    """Where plans play. ``send`` never blocks; ``advance`` returns the next executed step."""
+
+    dropped_planned: int  # planned actions dropped by a newer plan, total
+
+    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]: ...
+
+    def send(self, plan: Plan) -> None: ...
+
+    def queued(self, n: int) -> np.ndarray:
+        """The actions that will play in the next ``n`` steps if nothing new arrives (for planning ahead)."""
+        ...
+
+    def advance(self) -> Executed: ...
+
+
+def rollout(model: Model, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """The observation the model predicts after playing ``actions`` from ``obs``."""
+    o = np.asarray(obs, float)
+    for a in actions:
+        o = model(o, a)
+    return o
+
+
+class QueuedChannel:
+    """A gymnasium env behind a plan queue, as a robot plays it: one queued action per ``advance``.
+
+    A plan sent now takes effect ``latency`` steps later (the learner's thinking time); until then the
+    old plan keeps playing. With nothing queued the env gets ``hold`` (zero by default: no force, no
+    torque, no displacement) and the step is reported with ``plan_id`` -1.
+    """
+
+    def __init__(self, env: gym.Env, latency: int = 0, hold: np.ndarray | None = None) -> None:
+        if latency < 0:
+            raise ValueError(f"latency must be >= 0 steps, got {latency}")
+        self.env = env
+        self.latency = latency
+        shape = env.action_space.shape
+        self.hold = np.zeros(shape) if hold is None else np.asarray(hold, float).reshape(shape)
+        self.dropped_planned = 0
+        self.preemptions = 0
+        self._queue: deque[tuple[int, int, np.ndarray]] = deque()  # (plan_id, index, action)
+        self._pending: deque[tuple[int, Plan]] = deque()  # (steps until it takes effect, plan)
+
+    def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
+        self._queue.clear()
+        self._pending.clear()
+        return self.env.reset(seed=seed)
+
+    def send(self, plan: Plan) -> None:
+        self._pending.append((self.latency, plan))
+        self._deliver()
+
+    def queued(self, n: int) -> np.ndarray:
+        """The next ``n`` actions as they will play: the queue, replaced by pending plans as they land."""
+        queue, pending, out = list(self._queue), list(self._pending), []
+        for t in range(n):
+            for left, plan in pending:
+                if left == t:
+                    queue = [(plan.plan_id, i, a) for i, a in enumerate(plan.actions)]
+            out.append(queue.pop(0)[2] if queue else self.hold)
+        return np.asarray(out).reshape(-1, *self.hold.shape)
+
+    def _deliver(self) -> None:
+        while self._pending and self._pending[0][0] <= 0:
+            _, plan = self._pending.popleft()
+            if self._queue:
+                self.preemptions += 1
+                self.dropped_planned += len(self._queue)
+            self._queue = deque((plan.plan_id, i, a) for i, a in enumerate(plan.actions))
+
+    def advance(self) -> Executed:
+        plan_id, index, action = self._queue.popleft() if self._queue else (-1, -1, self.hold)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._pending = deque((left - 1, plan) for left, plan in self._pending)
+        self._deliver()
+        return Executed(plan_id, index, np.asarray(action), obs, float(reward), terminated, truncated, info)
