@@ -99,6 +99,13 @@ def _allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     return sorted(current.model_fields) if current is not None else []
 
 
+def _key(part: Any) -> str:
+    """A key as the error shows it: quoted when it is not plain printable text (a control character in
+    a key must not split or garble the one-line error)."""
+    text = str(part)
+    return text if text and text.isprintable() and text.strip() == text and "." not in text else repr(text)
+
+
 def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> str:
     """One line per error: ``where: key.path: what is wrong (got X)``, with allowed keys for unknown ones."""
     prefix = f"{where}: " if where else ""
@@ -108,7 +115,7 @@ def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> s
     for err in errors:
         if err["type"] == "too_short" and tuple(err["loc"]) in deeper:
             continue  # "0 items" only because an item inside failed, which is reported itself
-        path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        path = ".".join(_key(p) for p in err["loc"]) or "(top level)"
         if err["type"] == "extra_forbidden":
             allowed = _allowed_keys(model, tuple(err["loc"]))
             lines.append(f"{prefix}{path}: unknown key; allowed: {allowed}")
@@ -117,7 +124,7 @@ def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> s
         shown = "" if isinstance(got, dict) else f" (got {got!r})"
         # An invariant's own words, without pydantic's "Value error, " in front.
         msg = str(err["ctx"]["error"]) if err["type"] == "value_error" else err["msg"]
-        lines.append(f"{prefix}{path}: {msg}{shown}")
+        lines.append(f"{prefix}{path}: {'; '.join(msg.splitlines())}{shown}")
     return "\n".join(lines)
 
 
