@@ -3,7 +3,8 @@
 The clock counts environment steps and never resets with episodes; the signal is seeded, so a seed
 reproduces the whole run. Value = clip(base + amplitude·sin(2πt/period + phase) + walk + jump, low, high)
 where ``walk`` is a reflected Gaussian random walk and ``jump`` a piecewise-constant offset redrawn
-every ``jump_every`` steps.
+every ``jump_every`` steps; ``step_size`` is added once the clock reaches ``step_at`` (one abrupt change,
+for measuring how the learner responds to it).
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ class DriftConfig(Section):
     walk_std: float = Field(0.0, ge=0)
     jump_every: int = Field(0, ge=0)  # 0: no jumps
     jump_size: float = Field(0.0, ge=0)
+    step_at: int = Field(0, ge=0)  # one abrupt change of ``step_size`` at this step (0: none)
+    step_size: float = 0.0
 
     @model_validator(mode="after")
     def _base_in_band(self) -> DriftConfig:
@@ -44,7 +47,8 @@ class DriftSchedule:
     def value(self) -> float:
         c = self.config
         wave = c.amplitude * np.sin(2.0 * np.pi * self.t / c.period + self.phase)
-        return float(np.clip(c.base + wave + self.walk + self.jump, c.low, c.high))
+        step = c.step_size if 0 < c.step_at <= self.t else 0.0
+        return float(np.clip(c.base + wave + self.walk + self.jump + step, c.low, c.high))
 
     def advance(self) -> None:
         """One tick of the global clock."""
