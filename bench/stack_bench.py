@@ -8,7 +8,12 @@ count, episode length and target motion in-process on ``NSReach-v0``. The learne
 ``configs/sim.yaml`` as it is when this runs. The target is the simulator's ground truth on both sides
 (``sim/target_truth``) so the comparison isolates the transport and process split, not vision.
 Writes ``results/stack_bench.json`` and ``results/stack_bench.png``.
-Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0]``.
+
+``--execution plan`` adds a third run: the same learner over Zenoh in plan execution (committed plans
+that the robot plays while the learner learns, a retreat preempting the rest), reported next to the
+closed-loop run; ``--latency-ms`` injects that much learner latency into both Zenoh runs (each chunk is
+published that late), so plan mode's last-quarter success is stated next to closed-loop's under the same
+delay. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--execution plan] [--latency-ms 250]``.
 """
 
 from __future__ import annotations
@@ -32,7 +37,9 @@ from deploy import messages as m
 from deploy.transport import Bus, ZenohConfig, open_session
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
+# Free ports and unique names: the tests' helper. The repository root goes first: with tests/ alone in
+# front, ``import tasks`` found the test folder tests/tasks (a namespace package) before the installed one.
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from loopback import free_endpoint, unique_name  # noqa: E402
 
 
@@ -123,13 +130,22 @@ def quarters(eps: list[dict[str, Any]], key: str) -> list[float | None]:
     return [float(np.mean(v)) if v else None for v in vals]
 
 
-def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
+def run_zenoh(
+    cfg: dict[str, Any], steps: int, tmp: Path, execution: str = "closed_loop", latency_ms: float = 0.0
+) -> dict[str, Any]:
     cfg = json.loads(json.dumps(cfg))
     cfg["name"] = unique_name("bench")
     cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
     cfg.pop("vision", None)
+    tmp = tmp / execution
+    tmp.mkdir(parents=True, exist_ok=True)
     cfg["learner"].update(
-        steps=steps, target_topic="sim/target_truth", checkpoint_dir=str(tmp / "l"), checkpoint_every=10**9
+        steps=steps,
+        target_topic="sim/target_truth",
+        checkpoint_dir=str(tmp / "l"),
+        checkpoint_every=10**9,
+        execution=execution,
+        latency_ms=latency_ms,
     )
     path = tmp / "stack.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -163,9 +179,15 @@ def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]:
             **loop_rate(states, t0, t1, cfg["robot"]["control_rate_hz"]),
         },
         "state_to_command_latency": latency(states, chunks),
+        "execution": execution,
+        "latency_ms": latency_ms,
         "chunk_preemptions": res["chunk_preemptions"],
         "dropped_actions": res["dropped_actions"],
+        "dropped_planned": res["dropped_planned"],
+        "dropped_planned_moving": res["dropped_planned_moving"],
         "retreat_preemptions": res["retreat_preemptions"],
+        "retreat_dropped": res["retreat_dropped"],
+        "retreat_dropped_moving": res["retreat_dropped_moving"],
         "segments": len(res["segments"]),
         "retreats": sum(s["reason"] == "retreat" for s in res["segments"]),
         "curve": curve(res["episodes"]),
@@ -206,9 +228,15 @@ def plot(out: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    for name, col in (("zenoh", "tab:blue"), ("in_process", "tab:orange")):
+    labels = {
+        "zenoh": ("over Zenoh, closed loop", "tab:blue"),
+        "zenoh_plan": ("over Zenoh, plan execution", "tab:green"),
+        "in_process": ("in-process NSReach-v0", "tab:orange"),
+    }
+    for name, (label, col) in labels.items():
+        if name not in out:
+            continue
         c = out[name]["curve"]
-        label = "over Zenoh (2 processes)" if name == "zenoh" else "in-process NSReach-v0"
         for ax, key in ((axes[0], "return"), (axes[1], "final_distance")):
             x = [e["step"] for e in c]
             y = [e[key] for e in c]
@@ -234,6 +262,14 @@ def plot(out: dict[str, Any], path: Path) -> None:
         f"retreats: Zenoh {out['zenoh']['retreats']}/{out['zenoh']['segments']} segments,"
         f" in-process {out['in_process']['retreats']}/{out['in_process']['segments']}",
     ]
+    if "zenoh_plan" in out:
+        plan = out["zenoh_plan"]
+        text += [
+            f"plan execution, latency {plan['latency_ms']:.0f} ms: last-quarter success"
+            f" {plan['success_by_quarter'][-1]} vs closed loop {out['zenoh']['success_by_quarter'][-1]}",
+            f"  retreats {plan['retreats']}/{plan['segments']}, dropped at retreat"
+            f" {plan['retreat_dropped']} ({plan['retreat_dropped_moving']} moving)",
+        ]
     axes[2].text(0.0, 0.95, "\n".join(text), va="top", family="monospace", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -246,6 +282,15 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=None, help="override learner.seed")
     ap.add_argument("--out", default=str(ROOT / "results/stack_bench.json"))
+    ap.add_argument(
+        "--execution",
+        choices=("closed_loop", "plan"),
+        default="closed_loop",
+        help="plan: also run plan execution over Zenoh, reported next to closed loop",
+    )
+    ap.add_argument(
+        "--latency-ms", type=float, default=0.0, help="learner latency injected into the Zenoh runs"
+    )
     args = ap.parse_args()
     os.chdir(ROOT)
     cfg = yaml.safe_load(open(args.config))
@@ -254,7 +299,8 @@ def main() -> int:
     lc = cfg["learner"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        zen = run_zenoh(cfg, args.steps, tmp)
+        zen = run_zenoh(cfg, args.steps, tmp, "closed_loop", args.latency_ms)
+        plan = run_zenoh(cfg, args.steps, tmp, "plan", args.latency_ms) if args.execution == "plan" else None
         inp = run_in_process(cfg, args.steps, tmp)
     out: dict[str, Any] = {
         "config": {
@@ -264,17 +310,24 @@ def main() -> int:
             "agent": lc.get("agent", {}),
             "max_episode_steps": lc["max_episode_steps"],
             "chunk_len": lc["chunk_len"],
+            "execution": args.execution,
+            "latency_ms": args.latency_ms,
             "target_motion": cfg["robot"].get("target_motion"),
             "target": "sim/target_truth (ground truth both sides)",
         },
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()},
         "zenoh": zen,
+        **({"zenoh_plan": plan} if plan is not None else {}),
         "in_process": inp,
     }
-    for name in ("zenoh", "in_process"):
+    runs = [name for name in ("zenoh", "zenoh_plan", "in_process") if name in out]
+    for name in runs:
         c = out[name]["curve"]
         out[name]["return_by_quarter"] = quarters(c, "return")
         out[name]["final_distance_by_quarter"] = quarters(c, "final_distance")
+        out[name]["success_by_quarter"] = quarters(
+            [{**e, "success": float(bool(e["success"]))} for e in c], "success"
+        )
         out[name]["success_rate"] = float(np.mean([bool(e["success"]) for e in c])) if c else None
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -283,10 +336,11 @@ def main() -> int:
     loop, lat = zen["control_loop"], zen["state_to_command_latency"]
     print(f"control loop: {loop.get('achieved_hz', float('nan')):.2f} Hz (target {loop['target_hz']:.0f})")
     print(f"state->command latency: p50 {lat.get('p50_ms')} ms, p99 {lat.get('p99_ms')} ms")
-    for name in ("zenoh", "in_process"):
+    for name in runs:
         o = out[name]
         print(
-            f"{name:10s}: wall {o['wall_clock_s']:.0f} s, return by quarter "
+            f"{name:10s}: wall {o['wall_clock_s']:.0f} s, success by quarter "
+            f"{[round(x, 2) if x is not None else None for x in o['success_by_quarter']]}, return by quarter "
             f"{[round(x, 2) if x is not None else None for x in o['return_by_quarter']]}, final distance by "
             f"quarter {[round(x, 3) if x is not None else None for x in o['final_distance_by_quarter']]}, "
             f"success {o['success_rate']}, retreats {o['retreats']}/{o['segments']}"

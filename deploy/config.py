@@ -9,6 +9,7 @@ take the result (or its sections), so a key is read, coerced and checked in one 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -47,8 +48,19 @@ class LearnerConfig(Section):
     target_box: Box3 = ((0.35, -0.3, 0.12), (0.65, 0.3, 0.45))
     target_speed_max: float = Field(0.06, gt=0)
     step_timeout_s: float = Field(2.0, gt=0)
+    # A target older than this (or reported lost) is not guessed from: the closed loop waits for a fresh
+    # fix (the arm holds meanwhile: no chunk, so robot-io's watchdog stops it).
+    target_timeout_s: float = Field(0.5, gt=0)
     checkpoint_dir: str = "runs/stack/learner"
     checkpoint_every: int = Field(500, ge=1)
+    # closed_loop: one action per step, sent as a chunk (above). plan: a segment is a committed plan that
+    # the robot plays while the learner learns from every executed tick (learner/plans.py,
+    # deploy/zenoh_env.py); a retreat preempts the rest. closed_loop stays the default until plan mode
+    # is measured to learn NS Reach at least as well through the stack (bench/stack_bench.py).
+    execution: Literal["closed_loop", "plan"] = "closed_loop"
+    # The learner's thinking time made real: each chunk is published this late (plan mode: the old plan
+    # keeps playing meanwhile; closed loop: the last chunk's tail does).
+    latency_ms: float = Field(0.0, ge=0, le=10_000)
 
     @field_validator("agent")
     @classmethod
@@ -61,7 +73,25 @@ class LearnerConfig(Section):
                 model.model_validate(agent)
             except ValueError as exc:  # pydantic's ValidationError: say which keys, for this algo
                 raise ValueError(f"for algo {algo}: {describe(exc, model)}") from None
+        owned = sorted({"execution", "latency_steps"} & set(agent))
+        if owned:  # one place says how the learner executes: this section, not the agent's
+            raise ValueError(f"{owned}: set by learner.execution and learner.latency_ms, not learner.agent")
         return agent
+
+    @model_validator(mode="after")
+    def _plan_mode_supported(self) -> LearnerConfig:
+        if self.execution == "plan" and "execution" not in AGENT_CONFIGS[self.algo].model_fields:
+            raise ValueError(f"execution plan: algo {self.algo} has no plan mode")
+        return self
+
+    def agent_config(self, period_s: float) -> dict[str, Any]:
+        """``agent`` with the execution mode; in plan mode the agent plans ahead over the actions that
+        play during the latency (``latency_steps``: latency_ms in control periods, rounded up), while the
+        env, not the agent, delays the plan."""
+        if self.execution == "closed_loop":
+            return dict(self.agent)
+        steps = math.ceil(self.latency_ms / 1000.0 / period_s - 1e-9)
+        return {**self.agent, "execution": "plan", "latency_steps": steps}
 
 
 class RecordingConfig(Section):
@@ -70,6 +100,14 @@ class RecordingConfig(Section):
     enabled: bool = True
     dir: str = "runs/stack/recordings"
     exclude: tuple[str, ...] = ()
+
+
+class SupervisorConfig(Section):
+    """The ``supervisor:`` section of ``adaptiveh up``: how a crashed part is brought back."""
+
+    max_restarts: int = Field(3, ge=0)  # per part; the run ends when a part has used them all
+    backoff_s: float = Field(1.0, gt=0)  # wait before the first restart, doubled each time
+    backoff_max_s: float = Field(30.0, gt=0)
 
 
 class StackConfig(Section):
@@ -82,6 +120,7 @@ class StackConfig(Section):
     learner: LearnerConfig = LearnerConfig()
     monitor: MonitorConfig | None = None
     recording: RecordingConfig = RecordingConfig()
+    supervisor: SupervisorConfig = SupervisorConfig()
 
     @model_validator(mode="after")
     def _sim_camera_needs_sim_arm(self) -> StackConfig:

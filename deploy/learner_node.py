@@ -4,8 +4,11 @@ Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``tele
 every finished episode; obeys ``control`` pause/resume (with the operator token when one is set);
 declares ``alive/learner`` so the robot holds while the learner is gone; checkpoints to
 ``checkpoint_dir/checkpoint.pkl`` every ``checkpoint_every`` steps and at the end, and resumes from it
-on restart. AdaptiveH's chunk tail is its own plan: the policy mean rolled forward on extrapolated
-observations (see ``deploy.zenoh_env``).
+on restart. In closed loop, AdaptiveH's chunk tail can be its own plan: the policy mean rolled
+forward on the task's model (``learner.plan: policy``). With ``learner.execution: plan`` the agent
+plays committed plans through the env (``deploy.zenoh_env``), learning from every executed tick; a
+retreat's plan preempts the rest of the old one, and the planned actions that drops (the non-zero ones
+apart: real motion abandoned) are counted as ``retreat_dropped`` / ``retreat_dropped_moving``.
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ import numpy as np
 from deploy import messages as m
 from deploy.config import StackConfig
 from deploy.node import Node
-from deploy.zenoh_env import EnvSettings, EnvStopped, ZenohReachEnv, extrapolate
+from deploy.plan_channel import PlanDrop
+from deploy.zenoh_env import EnvSettings, EnvStopped, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_summary import summarize
@@ -46,6 +50,9 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         target_hi=lc.target_box[1],
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
+        target_timeout_s=lc.target_timeout_s,
+        execution=lc.execution,
+        latency_ms=lc.latency_ms,
     )
 
 
@@ -60,8 +67,10 @@ class LearnerNode(Node):
         self.control_token = control_token
         super().__init__(settings.name, settings.zenoh)
         self.env = ZenohReachEnv(self.bus, env_settings(settings))
-        self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, self.cfg.agent)
-        if self.cfg.plan == "policy" and hasattr(self.agent, "step_env"):
+        agent_cfg = self.cfg.agent_config(settings.robot.period)
+        self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, agent_cfg)
+        closed_loop = self.cfg.execution == "closed_loop"
+        if self.cfg.plan == "policy" and closed_loop and hasattr(self.agent, "step_env"):
             self.env.planner = self._plan
         self.ckpt = Path(self.cfg.checkpoint_dir) / "checkpoint.pkl"
         self.resumed_from = 0
@@ -76,18 +85,19 @@ class LearnerNode(Node):
         self._segments_seen = len(self.agent.log.segments)
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
+        self.retreat_dropped_moving = 0  # plan mode: of the retreat-dropped actions, the non-zero ones
         self._retreat_chunks: set[int] = set()
         self.env.on_status = self._on_status
+        self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control)
         self.declare_alive()
 
     # -- plan and accounting -------------------------------------------------------------------------
     def _plan(self, obs: np.ndarray, action: np.ndarray, n: int) -> np.ndarray:
-        """The policy mean on observations extrapolated from ``obs`` after ``action``."""
-        dt = self.settings.robot.period
+        """The policy mean on observations the task's model predicts from ``obs`` after ``action``."""
         out, o, a = [], np.asarray(obs, float), np.asarray(action, float)
         for _ in range(n):
-            o = extrapolate(o, a, dt)
+            o = self.env.predict_next(o, a)
             a = np.asarray(self.agent.predict(o, deterministic=True), float).reshape(3)
             out.append(a)
         return np.asarray(out)
@@ -96,6 +106,13 @@ class LearnerNode(Node):
         if msg.preempted_by in self._retreat_chunks and msg.dropped:
             self.retreat_preemptions += 1
             self.retreat_dropped += msg.dropped
+
+    def _on_plan_dropped(self, drop: PlanDrop) -> None:
+        """Plan mode: a plan made after a retreat preempted the rest of the previous one."""
+        if drop.by_reason == "retreat":
+            self.retreat_preemptions += 1
+            self.retreat_dropped += drop.dropped
+            self.retreat_dropped_moving += drop.moving
 
     def _on_control(self, msg: m.Control) -> None:
         command = m.label(msg, "command")
@@ -138,7 +155,8 @@ class LearnerNode(Node):
                 )
             )
             self.env.segment = rec.index + 1
-            if rec.reason == "retreat":
+            self.env.next_plan_reason = rec.reason  # plan mode: the next plan is this segment end's
+            if rec.reason == "retreat" and self.cfg.execution == "closed_loop":
                 self._retreat_chunks.add(self.env.chunk_seq + 1)  # the next chunk opens the new segment
         self._segments_seen = len(lg.segments)
         if len(lg.episodes) > self._episodes_seen:
@@ -194,10 +212,17 @@ class LearnerNode(Node):
             "resumed_from": self.resumed_from,
             "steps_this_session": steps,
             "wall_clock_s": wall,
+            "execution": self.cfg.execution,
+            "latency_ms": self.cfg.latency_ms,
             "chunk_preemptions": self.env.preemptions,
             "dropped_actions": self.env.dropped_total,
+            "target_waits": self.env.target_waits,
+            "dropped_planned": self.env.book.dropped_planned,
+            "dropped_planned_moving": self.env.book.dropped_moving,
+            "suspended_ticks": self.env.suspended_ticks,
             "retreat_preemptions": self.retreat_preemptions,
             "retreat_dropped": self.retreat_dropped,
+            "retreat_dropped_moving": self.retreat_dropped_moving,
             **self.agent.log.to_dict(),
         }
         path = self.ckpt.parent / "result.json"

@@ -4,8 +4,11 @@ One MCAP channel per key expression (``adaptiveh/<robot>/<topic>``), message enc
 one schema per message type: its full name (``adaptiveh.RobotState``) and the ``FileDescriptorSet`` of
 ``adaptiveh.proto``, so any MCAP reader decodes the file with the schema alone (Foxglove does).
 Bytes that do not decode as their key's type are kept too, wrapped in an ``adaptiveh.Rejected`` on the
-channel ``_rejected/<key>``: nothing seen on the bus is lost. ``adaptiveh replay`` republishes the
-valid channels with the original timing.
+channel ``_rejected/<key>``: nothing seen on the bus is lost. Given a ``Deriver``, the recorder also
+writes Foxglove's well-known channels derived from the messages (``adaptiveh/<robot>/foxglove/...``:
+image, transforms, 3D scene, log; ``deploy.foxglove.derive``), each with its own schema, so the file
+opens in Foxglove's 3D, image and plot panels. ``adaptiveh replay`` republishes the robot's own
+channels (not the rejected or derived ones) with the original timing.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from deploy import messages as m
+from deploy.foxglove.derive import Derived, Deriver, is_derived
 
 log = logging.getLogger(__name__)
 NAMESPACE = m.NAMESPACE
@@ -51,9 +55,20 @@ def file_descriptor_set(msg_type: type[m.Message]) -> bytes:
 
 
 class Recorder:
-    """Subscribes to ``adaptiveh/<robot>/**`` on ``session`` and writes every sample to ``path``."""
+    """Subscribes to ``adaptiveh/<robot>/**`` on ``session`` and writes every sample to ``path``.
 
-    def __init__(self, session: zenoh.Session, robot: str, path: str | Path, exclude: tuple[str, ...] = ()):
+    ``deriver``: writes the Foxglove channels derived from each valid message too (the stack passes one
+    built from its config; without one the file holds the raw channels only).
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: str,
+        path: str | Path,
+        exclude: tuple[str, ...] = (),
+        deriver: Deriver | None = None,
+    ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "wb")
@@ -63,6 +78,8 @@ class Recorder:
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._seq: dict[str, int] = {}
+        self._deriver = deriver
+        self.derived = 0
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
         self.count = 0
         self._closed = False
@@ -77,23 +94,29 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            key, data = self._checked(key, data)
-            channel = self._channel(key, m.Rejected if key.startswith(REJECTED) else m.topic_of_key(key).type)
-            self._seq[key] = self._seq.get(key, 0) + 1
-            self._writer.add_message(channel, now, data, now, self._seq[key])
+            key, data, msg = self._checked(key, data)
+            channel = self._channel(key, m.Rejected if msg is None else type(msg))
+            self._write(key, channel, data, now)
             self.count += 1
+            if self._deriver is not None and msg is not None:
+                for derived in self._deriver.feed(m.topic_of_key(key), msg):
+                    self._write(derived.topic, self._derived_channel(derived), derived.data, now)
+                    self.derived += 1
+
+    def _write(self, key: str, channel: int, data: bytes, now: int) -> None:
+        self._seq[key] = self._seq.get(key, 0) + 1
+        self._writer.add_message(channel, now, data, now, self._seq[key])
 
     @staticmethod
-    def _checked(key: str, data: bytes) -> tuple[str, bytes]:
-        """(key, data) for a valid message; (``_rejected/<key>``, a Rejected wrapping it) otherwise."""
+    def _checked(key: str, data: bytes) -> tuple[str, bytes, m.Message | None]:
+        """(key, data, message) for a valid message; (``_rejected/<key>``, a Rejected wrapping it, None)."""
         topic = m.topic_of_key(key)
         try:
             if topic is None:
                 raise m.MessageError(f"{key}: not a topic of the schema")
-            topic.decode(data)
-            return key, data
+            return key, data, topic.decode(data)
         except m.MessageError as exc:
-            return REJECTED + key, m.Rejected(key=key, error=str(exc), data=data).SerializeToString()
+            return REJECTED + key, m.Rejected(key=key, error=str(exc), data=data).SerializeToString(), None
 
     def _channel(self, key: str, msg_type: type[m.Message]) -> int:
         channel = self._channels.get(key)
@@ -104,6 +127,17 @@ class Recorder:
                 schema = self._writer.register_schema(name, "protobuf", file_descriptor_set(msg_type))
                 self._schemas[name] = schema
             channel = self._channels[key] = self._writer.register_channel(key, "protobuf", schema)
+        return channel
+
+    def _derived_channel(self, d: Derived) -> int:
+        channel = self._channels.get(d.topic)
+        if channel is None:
+            schema = self._schemas.get(d.schema_name)
+            if schema is None:
+                schema = self._writer.register_schema(d.schema_name, d.schema_encoding, d.schema_data)
+                self._schemas[d.schema_name] = schema
+            channel = self._writer.register_channel(d.topic, d.message_encoding, schema)
+            self._channels[d.topic] = channel
         return channel
 
     def close(self) -> None:
@@ -122,11 +156,12 @@ def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
     """All messages of a recording as (key, schema name, log_time ns, payload), in time order.
 
     Recordings made before the protobuf schema (msgpack channels) are refused with a RecordingError.
+    The derived Foxglove channels are read too (the JSON ones among them); ``replayable`` drops them.
     """
     out = []
     with open(path, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-            if channel.message_encoding != "protobuf":
+            if channel.message_encoding != "protobuf" and not is_derived(channel.topic):
                 raise RecordingError(
                     f"{path}: channel {channel.topic} is encoded as {channel.message_encoding!r}; this "
                     "build reads protobuf recordings only (msgpack ones come from adaptiveh before the "
@@ -134,6 +169,11 @@ def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
                 )
             out.append((channel.topic, schema.name if schema else "", message.log_time, message.data))
     return out
+
+
+def replayable(records: list[tuple[str, str, int, bytes]]) -> list[tuple[str, str, int, bytes]]:
+    """The records of the robot's own topics: not the rejected bytes, not the derived Foxglove channels."""
+    return [r for r in records if m.topic_of_key(r[0]) is not None]
 
 
 def recorded_robot(key: str) -> str:
@@ -159,7 +199,7 @@ def replay(
     recorded name. ``wait_subscribers_s``: wait up to this long for a subscriber to match before the
     first message, so a subscriber elsewhere on the bus does not miss the start while peers connect.
     """
-    records = [r for r in read(path) if not r[0].startswith(REJECTED)]  # rejected bytes stay in the file
+    records = replayable(read(path))  # rejected bytes and derived channels stay in the file
     if not records:
         return 0
 

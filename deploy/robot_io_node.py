@@ -1,10 +1,17 @@
 """The robot-interface process: robot_io's controller behind Zenoh.
 
-It ticks the controller at the control rate and publishes ``state`` every tick, ``cmd/status`` for every
-chunk change (executed, dropped, preempted_by) and ``events/safety`` for every intervention. It takes
-``cmd/chunk`` and ``control``, answers ``reset``, declares ``alive/robot_io`` and holds the arm while a
-watched peer's liveliness token (the learner's, by default) is gone. Physics (pybullet) and IK run on the
-control thread only; Zenoh callbacks just queue work for it, and an e-stop wakes it at once.
+It ticks the controller at the control rate and publishes ``state`` every tick (with the tick's number
+and which chunk action it played), ``cmd/status`` for every chunk change (executed, dropped,
+preempted_by) and ``events/safety`` for every intervention. It takes ``cmd/chunk`` and ``control``,
+answers ``reset``, declares ``alive/robot_io`` and holds the arm while a watched peer's liveliness
+token (the learner's, by default) is gone. Physics (pybullet) and IK run on the control thread only;
+Zenoh callbacks just queue work for it, and an e-stop wakes it at once.
+
+A chunk is a plan and is refused whole when it is malformed: bytes that do not decode (NaN, a length
+that is not a multiple of 3: ``bad_message``) or a decoded plan that breaks the robot's rules (empty,
+longer than ``robot.max_plan_actions``, a step above ``robot.max_step_m``, a predicted path of another
+length: ``bad_plan``). Nothing of it plays and the arm holds where it is; see
+``RobotController.refuse_plan`` for what changes and what does not.
 """
 
 from __future__ import annotations
@@ -35,6 +42,9 @@ def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
         mode=m.enum(m.RobotState, "mode", s.mode),
         chunk_seq=s.chunk_seq,
         queue_len=s.queue_len,
+        tick=s.tick,
+        played_chunk=s.played_chunk,
+        played_index=s.played_index,
     )
 
 
@@ -77,23 +87,28 @@ class RobotIONode(Node):
 
     # -- Zenoh callbacks (Zenoh threads) -------------------------------------------------------------
     def _on_bad(self, topic: str, exc: Exception) -> None:
+        if topic == m.CMD_CHUNK.name:  # a plan that does not even decode: refused whole, the arm holds
+            self.controller.refuse_plan("bad_message", f"{topic}: {exc}")
+            self._wake.set()  # the control thread publishes the event and the dropped rest at once
+            return
         self._publish_safety("bad_message", f"{topic}: {exc}", self.controller.safety.mode != "running")
 
     def _on_chunk(self, msg: m.ActionChunk) -> None:
-        try:
-            actions = m.action_array(msg)
-        except m.MessageError as exc:
-            self._on_bad(m.CMD_CHUNK.name, exc)
-            return
-        if not self.controller.push_chunk(msg.seq, actions, time.monotonic()):
-            mode = self.controller.safety.mode
-            detail = (
-                f"refused in mode {mode}"
-                if mode in ("estop", "paused")
-                else "not newer than the current chunk"
+        actions = m.action_array(msg)  # decode already checked the length
+        if msg.predicted_ee and len(msg.predicted_ee) != len(msg.actions):
+            n_pred = len(msg.predicted_ee) // 3
+            self.controller.refuse_plan(
+                "bad_plan", f"chunk {msg.seq}: {n_pred} predicted positions for {len(actions)} actions"
             )
-            log.info("chunk %d %s", msg.seq, detail)
-            self._pub_status(m.ChunkStatus(chunk_seq=msg.seq, executed=0, dropped=len(actions), done=True))
+            outcome = "bad_plan"
+        else:
+            outcome = self.controller.push_chunk(msg.seq, actions, time.monotonic())
+        if outcome == "accepted":
+            return
+        if outcome == "bad_plan":
+            self._wake.set()
+        log.info("chunk %d not played: %s (mode %s)", msg.seq, outcome, self.controller.safety.mode)
+        self._pub_status(m.ChunkStatus(chunk_seq=msg.seq, executed=0, dropped=len(actions), done=True))
 
     def _on_control(self, msg: m.Control) -> None:
         command = m.label(msg, "command")

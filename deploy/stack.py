@@ -27,8 +27,9 @@ import numpy as np
 import zenoh
 
 from deploy import messages as m
-from deploy.commands import SUPERVISOR_ENV
+from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
+from deploy.foxglove.derive import Deriver, SceneSetup
 from deploy.recording import Recorder
 from deploy.transport import Bus, open_session
 from learner.run_summary import h_stats
@@ -36,7 +37,7 @@ from learner.run_summary import h_stats
 log = logging.getLogger(__name__)
 
 
-def check(config: str | Path) -> tuple[bool, list[str]]:
+def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]:
     """Validate every section and look for the drivers the config needs; moves nothing."""
     try:
         cfg = load_stack_config(config)
@@ -45,8 +46,12 @@ def check(config: str | Path) -> tuple[bool, list[str]]:
     camera = f"vision camera {cfg.vision.camera}" if cfg.vision is not None else "no vision"
     lines, ok = [f"config {config}: every section valid (robot backend {cfg.robot.backend}, {camera})"], True
     needs: list[tuple[str, str]] = []
-    if cfg.robot.backend == "franka":
-        needs.append(("pylibfranka", "robot backend franka: pip install adaptiveh[franka] (pylibfranka)"))
+    if cfg.robot.backend == "franka":  # model, driver, and the arm's version when it answers
+        from robot_io.backends.franky_model import probe_arm as probe
+
+        arm_ok, arm_lines = probe(cfg.robot.franka.ip, cfg.robot.model, connect=probe_arm)
+        ok &= arm_ok
+        lines += arm_lines
     if cfg.vision is not None and cfg.vision.camera == "realsense":
         needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
     for module, why in needs:
@@ -82,25 +87,70 @@ class Stack:
         self.learner_dir = Path(self.cfg.learner.checkpoint_dir)
         self.run_dir = Path(run_dir) if run_dir else self.learner_dir.parent
         self.procs: dict[str, subprocess.Popen] = {}
+        self.restarts: dict[str, int] = {}
         self._stop = threading.Event()
         self.retreats: list[m.RetreatEvent] = []
         self.safety: list[m.SafetyEvent] = []
         self.telemetry: list[m.LearnerTelemetry] = []
         self.monitor_url = ""
+        self.foxglove_url = ""  # the monitor's Foxglove live view, when it serves one
         self.recording_path: Path | None = None
 
-    def _cmd(self, part: str, *extra: str) -> list[str]:
-        return [self.python, "-m", "deploy.cli", part, "--config", self.config, *extra]
+    def part_commands(self) -> dict[str, list[str]]:
+        """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
+        local user): it reaches the parts through their environment (``part_environment``)."""
+        cmds = {"robot_io": ["robot-io"], "vision": ["vision"], "monitor": ["monitor"], "learner": ["learn"]}
+        if self.cfg.vision is None:
+            del cmds["vision"]
+        if self.cfg.monitor is None:
+            del cmds["monitor"]
+        if self.steps is not None:
+            cmds["learner"] += ["--steps", str(self.steps)]
+        base = [self.python, "-m", "deploy.cli"]
+        tail = ["--config", self.config, "--log-level", "WARNING"]
+        return {part: [*base, *args, *tail] for part, args in cmds.items()}
 
-    def _spawn(self, part: str, cmd: list[str]) -> None:
+    def part_environment(self) -> dict[str, str]:
+        return {
+            **os.environ,
+            "PYTHONUNBUFFERED": "1",
+            SUPERVISOR_ENV: str(os.getpid()),
+            TOKEN_ENV: self.token,
+        }
+
+    def _spawn(self, part: str) -> None:
         logs = self.run_dir / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        fh = open(logs / f"{part}.log", "w")
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", SUPERVISOR_ENV: str(os.getpid())}
+        fh = open(logs / f"{part}.log", "a" if part in self.restarts else "w")
         self.procs[part] = subprocess.Popen(
-            cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True
+            self.part_commands()[part],
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            env=self.part_environment(),
+            start_new_session=True,
         )
         log.info("started %s (pid %d)", part, self.procs[part].pid)
+
+    def _restart_or_end(self, part: str, code: int) -> bool:
+        """Bring back a part that exited (True), after a doubling back-off; False once it used its restarts.
+
+        Meanwhile the arm is safe on its own: robot-io holds while the learner's liveliness token is
+        gone, and without a valid target the learner does not step. The recording shows the gap.
+        """
+        used = self.restarts.get(part, 0)
+        sup = self.cfg.supervisor
+        if used >= sup.max_restarts:
+            log.error("%s exited (code %s) and used its %d restarts; ending the run", part, code, used)
+            return False
+        wait = min(sup.backoff_s * 2**used, sup.backoff_max_s)
+        n = sup.max_restarts
+        log.warning("%s exited (code %s); restart %d of %d in %.1f s", part, code, used + 1, n, wait)
+        print(f"{part} exited (code {code}); restarting in {wait:.1f} s", flush=True)
+        self.restarts[part] = used + 1
+        if self._stop.wait(wait):
+            return False
+        self._spawn(part)
+        return True
 
     def request_stop(self) -> None:
         self._stop.set()
@@ -108,10 +158,14 @@ class Stack:
     def _wait_monitor_url(self, timeout: float = 30.0) -> None:
         path = self.run_dir / "logs" / "monitor.log"
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and not self.monitor_url:
+        live = self.cfg.monitor is not None and self.cfg.monitor.foxglove_port is not None
+        while time.monotonic() < deadline and not (self.monitor_url and (self.foxglove_url or not live)):
             for line in path.read_text().splitlines() if path.exists() else []:
-                if line.startswith("monitor: "):
+                if line.startswith("monitor: ") and not self.monitor_url:
                     self.monitor_url = line.split(" ", 1)[1]
+                    deadline = min(deadline, time.monotonic() + 2.0)  # its Foxglove URL follows, if started
+                elif line.startswith("foxglove: "):
+                    self.foxglove_url = line.split(" ", 1)[1]
             time.sleep(0.2)
 
     def run(self) -> dict[str, Any]:
@@ -133,32 +187,32 @@ class Stack:
             self.recording_path = (
                 Path(self.recording.dir) / f"{self.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
             )
-            recorder = Recorder(bus.session, self.name, self.recording_path, self.recording.exclude)
+            recorder = Recorder(
+                bus.session,
+                self.name,
+                self.recording_path,
+                self.recording.exclude,
+                deriver=Deriver(self.name, SceneSetup.from_stack(self.cfg)),
+            )
         bus.subscribe(m.EVENTS_RETREAT, self.retreats.append)
         bus.subscribe(m.EVENTS_SAFETY, self.safety.append)
         bus.subscribe(m.TELEMETRY_LEARNER, self.telemetry.append)
         t0 = time.monotonic()
         try:
-            self._spawn("robot_io", self._cmd("robot-io", f"--token={self.token}", "--log-level", "WARNING"))
-            if self.cfg.vision is not None:
-                self._spawn("vision", self._cmd("vision", "--log-level", "WARNING"))
-            if self.cfg.monitor is not None:
-                self._spawn(
-                    "monitor", self._cmd("monitor", f"--token={self.token}", "--log-level", "WARNING")
-                )
-                self._wait_monitor_url()
-                print(f"monitor: {self.monitor_url}", flush=True)
-            learn = self._cmd("learn", f"--token={self.token}", "--log-level", "WARNING")
-            if self.steps is not None:
-                learn += ["--steps", str(self.steps)]
-            self._spawn("learner", learn)
+            for part in self.part_commands():
+                self._spawn(part)
+                if part == "monitor":
+                    self._wait_monitor_url()
+                    print(f"monitor: {self.monitor_url}", flush=True)
+                    if self.foxglove_url:
+                        print(f"foxglove: {self.foxglove_url} (Foxglove: Open connection)", flush=True)
             last = 0.0
             while not self._stop.is_set():
-                if self.procs["learner"].poll() is not None:
-                    break
-                dead = [p for p, proc in self.procs.items() if proc.poll() is not None]
-                if dead:
-                    log.error("part(s) %s exited early; see %s", dead, self.run_dir / "logs")
+                if self.procs["learner"].poll() == 0:
+                    break  # the learner did its steps: the run is complete
+                dead = [(p, proc.returncode) for p, proc in self.procs.items() if proc.poll() is not None]
+                if any(not self._restart_or_end(part, code) for part, code in dead):
+                    log.error("see %s", self.run_dir / "logs")
                     break
                 if self.progress and time.monotonic() - last > 5.0:
                     last = time.monotonic()
@@ -221,4 +275,5 @@ class Stack:
             "recording": str(self.recording_path) if self.recording_path else None,
             "learner_result": str(result_path),
             "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},
+            "restarts": dict(self.restarts),
         }

@@ -39,6 +39,10 @@ class ZenohConfig(Section):
     listen: tuple[Endpoint, ...] = ()
     hub: Endpoint = "tcp/127.0.0.1:7447"  # loopback rendezvous when connect and listen are both empty
     multicast_scouting: bool = False
+    # A peer that dies without closing its session (SIGKILL, power, cable) is noticed when its lease
+    # expires: Zenoh's default 10 s left the arm driven by a dead learner's last chunk that long. Set on
+    # every session (the lease a peer declares is what the other side waits for).
+    lease_ms: int = Field(1000, ge=200)
     options: dict[str, Any] = {}  # extra Zenoh config keys, e.g. {"transport/...": v}
 
 
@@ -48,6 +52,8 @@ def _config(cfg: ZenohConfig, connect: list[str], listen: list[str]) -> zenoh.Co
     zc.insert_json5("connect/endpoints", json.dumps(connect))
     zc.insert_json5("listen/endpoints", json.dumps(listen))
     zc.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
+    zc.insert_json5("transport/link/tx/lease", json.dumps(cfg.lease_ms))
+    zc.insert_json5("transport/link/tx/keep_alive", json.dumps(4))  # keep-alives per lease (Zenoh's default)
     for key, value in cfg.options.items():
         zc.insert_json5(key, json.dumps(value))
     return zc

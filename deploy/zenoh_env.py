@@ -11,28 +11,45 @@ with their segment index, so a retreat shows as the first chunk of a new segment
 segment's plan. Observation: ee position/velocity (from ``state``) and target position/velocity (from
 vision's ``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process
 ``NSReach-v0`` (the reach task's observation is shared).
+
+Plan execution (``learner.execution: plan``): the env is also the learner's ``PlanChannel``
+(``learner.plans``). ``send(plan)`` publishes one chunk with the plan's actions, its predicted
+end-effector path and its segment, after ``learner.latency_ms`` of real delay (on a sender thread: the
+learner never waits, and the old plan keeps playing meanwhile); ``advance()`` returns the robot's next
+control tick as an executed step, from the ``state`` stream, which names the tick and the chunk action
+it played: every tick once, in order, a tick with nothing queued as a hold (plan -1, zero action);
+ticks while the operator has the arm e-stopped or paused are not steps of the task and are passed over.
+``dropped_planned`` counts planned actions a newer plan preempted, as the robot reports them.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
 
 from deploy import messages as m
+from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
 from deploy.transport import Bus
+from learner.plans import Executed, Plan
 from tasks.reach import (
+    predict_reach,
     reach_distance,
     reach_observation,
     reach_observation_bounds,
     reach_reward,
     reach_success,
 )
+
+log = logging.getLogger(__name__)
+SUSPENDED = ("estop", "paused", "fault")  # robot modes in which a tick is not a step of the task
 
 
 class EnvStopped(RuntimeError):
@@ -58,17 +75,10 @@ class EnvSettings:
     target_hi: tuple[float, ...]
     target_speed_max: float
     step_timeout_s: float
+    execution: Literal["closed_loop", "plan"]
+    latency_ms: float  # the learner's thinking time made real: a chunk goes out this late
     reset_timeout_s: float = 30.0
-
-
-def extrapolate(obs: np.ndarray, action: np.ndarray, dt: float) -> np.ndarray:
-    """The observation one period after ``action``: the ee moves by it, the target keeps its velocity."""
-    nxt = np.array(obs, dtype=float)
-    nxt[0:3] = obs[0:3] + action
-    nxt[3:6] = action / dt
-    nxt[6:9] = obs[6:9] + obs[9:12] * dt
-    nxt[12:15] = nxt[6:9] - nxt[0:3]
-    return nxt
+    target_timeout_s: float = 0.5
 
 
 def _seen_at(target: m.Target | None) -> float:
@@ -100,15 +110,31 @@ class ZenohReachEnv(gym.Env):
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         s = settings.max_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
+        self.period = 1.0 / settings.control_rate_hz
         self._cond = threading.Condition()
         self._state: m.RobotState | None = None
         self._state_count = 0
         self._target: m.Target | None = None
+        self._target_lost = False
+        self.target_waits = 0  # outages the closed loop waited out
         self.chunk_seq = 0  # the last chunk sent
         self.global_step = 0
         self._steps = 0
         self.dropped_total = 0
         self.preemptions = 0
+        self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
+        # Plan execution: the robot's ticks not yet returned by ``advance`` (with the target then known),
+        # the plans sent, and the sender that delays them by the learner's latency.
+        self.plan_mode = settings.execution == "plan"
+        self._ticks: deque[tuple[m.RobotState, m.Target | None]] = deque()
+        self._buffered_tick = -1  # the newest tick buffered (a state between ticks repeats it)
+        self._last_state: m.RobotState | None = None  # of the last tick ``advance`` returned
+        self.suspended_ticks = 0
+        self.book = PlanBook()
+        self.next_plan_reason: str | None = None  # set by the node: why the next plan is made
+        self.on_plan_dropped: Callable[[PlanDrop], None] | None = None
+        delay = settings.latency_ms / 1000.0
+        self._sender = DelayedSender(self._publish_plan, delay, self.stop) if delay > 0 else None
         # Chunk numbers start from the wall clock so a restarted learner's chunks are newer than the last
         # run's (robot-io refuses older ones).
         first = int(time.time() * 1000) % 1_000_000_000
@@ -118,24 +144,48 @@ class ZenohReachEnv(gym.Env):
         bus.subscribe(self.target_topic, self._on_target)
         bus.subscribe(m.CHUNK_STATUS, self._on_status)
         self.on_status: Callable[[m.ChunkStatus], None] | None = None
-        self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
 
     # -- Zenoh callbacks -----------------------------------------------------------------------------
     def _on_state(self, msg: m.RobotState) -> None:
         with self._cond:
             self._state = msg
             self._state_count += 1
+            if self.plan_mode and msg.tick > self._buffered_tick:
+                self._buffered_tick = msg.tick
+                self._ticks.append((msg, self._target))
             self._cond.notify_all()
 
     def _on_target(self, msg: m.Target) -> None:
-        if msg.valid:
-            with self._cond:
+        with self._cond:
+            self._target_lost = not msg.valid
+            if msg.valid:
                 self._target = msg
+            self._cond.notify_all()
+
+    def _target_fresh(self) -> bool:
+        """The newest target report is a valid fix observed within ``target_timeout_s``."""
+        age = time.time() - _seen_at(self._target)
+        return not self._target_lost and age <= self.settings.target_timeout_s
+
+    def _await_target(self) -> None:
+        """Block until the target is fresh again: a lost or stale target is never acted on (vision down,
+        the target out of view). The wait is logged once per outage."""
+        if self._wait(self._target_fresh, 0.0):
+            return
+        log.warning("target lost or stale on %s; waiting for a fresh fix", self.bus.key(self.target_topic))
+        t0 = time.monotonic()
+        while not self._wait(self._target_fresh, 1.0):
+            pass
+        self.target_waits += 1
+        log.warning("target back after %.1f s", time.monotonic() - t0)
 
     def _on_status(self, msg: m.ChunkStatus) -> None:
         if msg.preempted_by >= 0 and msg.dropped:
             self.dropped_total += msg.dropped
             self.preemptions += 1
+        drop = self.book.on_status(msg)
+        if drop is not None and self.on_plan_dropped is not None:
+            self.on_plan_dropped(drop)
         if self.on_status is not None:
             self.on_status(msg)
 
@@ -143,6 +193,11 @@ class ZenohReachEnv(gym.Env):
     @property
     def robot_mode(self) -> str:
         return m.label(self._state, "mode") if self._state is not None else "unknown"
+
+    @property
+    def dropped_planned(self) -> int:
+        """Planned actions that a newer plan preempted on the robot, total (the PlanChannel's count)."""
+        return self.book.dropped_planned
 
     def _wait(self, pred: Callable[[], bool], timeout: float) -> bool:
         """Wait for ``pred`` up to ``timeout``; ``EnvStopped`` as soon as the node is stopping."""
@@ -158,9 +213,13 @@ class ZenohReachEnv(gym.Env):
                 if left <= 0:
                     return False
 
-    def _observe(self) -> tuple[np.ndarray, float, dict[str, Any]]:
+    def _observe(
+        self, state: m.RobotState | None = None, target: m.Target | None = None
+    ) -> tuple[np.ndarray, float, dict[str, Any]]:
+        """Observation, distance and info of ``state`` and ``target`` (default: the newest of each)."""
         with self._cond:
-            state, target = self._state, self._target
+            state = self._state if state is None else state
+            target = self._target if target is None else target
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
         obs = reach_observation(ee, state.ee_vel, target.position, target.velocity)
@@ -179,6 +238,8 @@ class ZenohReachEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Home pose via the ``reset`` queryable; a seed gives the (simulated) target a new motion."""
         super().reset(seed=seed)
+        if self._sender is not None:
+            self._sender.cancel()  # a late plan of the last episode must not play in this one
         deadline = time.monotonic() + self.settings.reset_timeout_s
         while True:
             if self.stop.is_set():
@@ -199,7 +260,8 @@ class ZenohReachEnv(gym.Env):
             time.sleep(0.5)
         state = reply.state
         with self._cond:
-            self._state = state
+            if state.tick >= (self._state.tick if self._state is not None else -1):
+                self._state = state
         # Only a target detected after the reset: a reset moves the (simulated) target, and the last
         # message from before it (or the tracker coasting on the old track) put 20-40 cm jumps inside
         # episodes (measured), which wrecked the critic.
@@ -207,6 +269,11 @@ class ZenohReachEnv(gym.Env):
             raise TimeoutError(
                 f"no valid target on {self.bus.key(self.target_topic)} since the reset"
             )
+        with self._cond:
+            # The episode starts at the newest tick (the arm held since the reset: nothing queued);
+            # ``advance`` returns the ticks after it, each paired with a target from after the reset.
+            self._ticks.clear()
+            self._last_state = self._state
         self._steps = 0
         obs, _, info = self._observe()
         return obs, info
@@ -216,14 +283,17 @@ class ZenohReachEnv(gym.Env):
         if n <= 0:
             return action[None, :]
         tail = np.zeros((n, 3)) if self.planner is None else np.asarray(self.planner(obs, action, n))
-        return np.vstack([action[None, :], tail.reshape(n, 3)])
+        return cap_steps(np.vstack([action[None, :], tail.reshape(n, 3)]), self.settings.max_step_m)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         action = np.clip(
             np.asarray(action, float).reshape(3), -self.settings.max_step_m, self.settings.max_step_m
         )
+        self._await_target()
         obs_now, _, _ = self._observe()
         chunk = self._chunk(obs_now, action)
+        if self.settings.latency_ms > 0:
+            time.sleep(self.settings.latency_ms / 1000.0)  # thinking time; the last chunk's tail plays
         while True:
             if self.stop.is_set():
                 raise EnvStopped("stopped while waiting for the robot")
@@ -247,3 +317,68 @@ class ZenohReachEnv(gym.Env):
         obs, distance, info = self._observe()
         truncated = self._steps >= self.settings.max_episode_steps
         return obs, reach_reward(distance), False, truncated, info
+
+    # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
+    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
+        return predict_reach(obs, action, self.period, self.settings.max_step_m)
+
+    def send(self, plan: Plan) -> None:
+        """Publish ``plan`` as one chunk, now or ``latency_ms`` later; never blocks the learner."""
+        item = (plan, self.segment, self.next_plan_reason)
+        self.next_plan_reason = None
+        if self._sender is None:
+            self._publish_plan(item)
+        else:
+            self._sender.submit(item)
+
+    def _publish_plan(self, item: object) -> None:
+        plan, segment, reason = item  # type: ignore[misc]
+        actions = cap_steps(plan.actions, self.settings.max_step_m)
+        predicted = np.asarray(plan.predicted, float)[1 : len(actions) + 1, 0:3]
+        msg = m.ActionChunk(
+            actions=actions.ravel().tolist(), segment=segment, predicted_ee=predicted.ravel().tolist()
+        )
+        self.chunk_seq = self.book.send(lambda: self._pub_chunk(msg), plan, actions, reason)
+
+    def queued(self, n: int) -> np.ndarray:
+        """The next ``n`` (or fewer) actions the robot will play if no newer plan arrives, as of the last
+        tick returned: the rest of the chunk it was playing, or all of a plan published since (which
+        preempts it on arrival). A plan still waiting out the latency is not queued yet."""
+        with self._cond:
+            last = self._last_state
+        newest = self.book.newest()
+        rest = np.zeros((0, 3))
+        if newest is not None and last is not None and newest.seq > last.chunk_seq:
+            rest = newest.actions
+        elif last is not None and last.queue_len:
+            sent = self.book.get(last.chunk_seq)
+            if sent is not None:
+                rest = sent.actions[len(sent.actions) - last.queue_len :]
+        return rest[: max(n, 0)].copy()
+
+    def _next_tick(self) -> tuple[m.RobotState, m.Target | None]:
+        """The oldest tick not yet returned, waiting for it; ticks while suspended are passed over."""
+        while True:
+            if not self._wait(lambda: bool(self._ticks), self.settings.step_timeout_s):
+                log.warning("no robot state for %.1f s; waiting for robot-io", self.settings.step_timeout_s)
+                continue
+            with self._cond:
+                state, target = self._ticks.popleft()
+            if m.label(state, "mode") in SUSPENDED:
+                self.suspended_ticks += 1
+                continue
+            return state, target
+
+    def advance(self) -> Executed:
+        """The robot's next control tick as an executed step (see the module docstring)."""
+        state, target = self._next_tick()
+        with self._cond:
+            self._last_state = state
+        plan_id, index, action = played(state, self.book)
+        self._steps += 1
+        self.global_step += 1
+        obs, distance, info = self._observe(state, target)
+        info.update(tick=state.tick, played_chunk=state.played_chunk, mode=m.label(state, "mode"))
+        truncated = self._steps >= self.settings.max_episode_steps
+        return Executed(plan_id, index, action, obs, reach_reward(distance), False, truncated, info)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from experiments.metrics import run_metrics
-from experiments.plan import ENVS, EnvSpec, RunSpec
+from experiments.plan import EnvSpec, RunSpec
 
 
 def make_env(env: EnvSpec, kwargs: dict[str, Any]) -> Any:
@@ -84,13 +84,14 @@ def code_version() -> dict[str, Any]:
 def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
     from learner.registry import make_agent
 
-    env_spec = ENVS[spec.env]
+    env_spec = spec.env_spec
     env = make_env(env_spec, spec.env_kwargs)
     agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
     t0 = time.perf_counter()
     log = agent.learn(spec.steps)
     wall = time.perf_counter() - t0
     peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    channel = getattr(agent, "channel", None)  # plan execution: what the plan queue played and dropped
     env.close()
     eps = log.episodes
     info_keys = sorted({k for e in eps for k in e.info})
@@ -126,6 +127,13 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
             "global_step": [s.global_step for s in log.segments],
             "H": [s.H for s in log.segments],
             "reason": [s.reason for s in log.segments],
+        },
+        "plan_channel": None
+        if channel is None
+        else {
+            "dropped_planned": int(channel.dropped_planned),
+            "preemptions": int(getattr(channel, "preemptions", 0)),
+            "latency_steps": int(getattr(channel, "latency", 0)),
         },
     }
     runs_dir = out_dir / "runs"

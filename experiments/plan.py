@@ -108,6 +108,11 @@ class RunSpec:
     def name(self) -> str:
         return f"{self.env}__{self.algo}__s{self.seed}__{self.steps}"
 
+    @property
+    def env_spec(self) -> EnvSpec:
+        """The setting this run plays (other benches' specs may name settings outside ``ENVS``)."""
+        return ENVS[self.env]
+
 
 @dataclass
 class Plan:

@@ -23,7 +23,9 @@ def _limit_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
-def run_plan(plan: Plan, out_dir: Path, jobs: int, progress: bool = True) -> dict[str, list[str]]:
+def run_plan(
+    plan: Plan, out_dir: Path, jobs: int, progress: bool = True, label: str = "paper bench"
+) -> dict[str, list[str]]:
     """Execute the plan's unfinished runs, ``jobs`` at a time, each in a fresh process."""
     out_dir.mkdir(parents=True, exist_ok=True)
     pending = [r for r in plan.runs if not (out_dir / "runs" / f"{r.name}.json").is_file()]
@@ -40,7 +42,7 @@ def run_plan(plan: Plan, out_dir: Path, jobs: int, progress: bool = True) -> dic
         unit="step",
         unit_scale=True,
         disable=not progress,
-        desc=f"paper bench: {len(pending)} runs ({len(done)} done before)",
+        desc=f"{label}: {len(pending)} runs ({len(done)} done before)",
         dynamic_ncols=True,
     )
     ctx = mp.get_context("spawn")  # fresh interpreter per run: its RSS and RNG are its own

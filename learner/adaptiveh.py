@@ -103,6 +103,7 @@ class AdaptiveH:
         if cfg.execution == "plan":
             self.model, self.channel = self._plan_execution(env)
         self._plan: Plan | None = None  # the open segment's plan
+        self._plan_started = False  # one of its actions has played
         self._plans: dict[int, Plan] = {}  # recent plans by id: with latency the previous one still plays
         self._next_plan_id = 0
 
@@ -177,6 +178,7 @@ class AdaptiveH:
             self._reset_episode()
         if self._plan is None:
             self._plan = self._make_plan(self._obs)
+            self._plan_started = False
             self.channel.send(self._plan)
         s = self.normalize(self._obs)
         step = self.channel.advance()
@@ -192,6 +194,12 @@ class AdaptiveH:
         record = self._learn_from(
             s, raw, step.reward, step.obs, step.terminated, episode_over, predicted, reached
         )
+        if step.plan_id == self._plan.plan_id:
+            self._plan_started = True
+        elif step.plan_id == -1 and self._plan_started and record is None:
+            # The plan is gone (played out, or dropped by an e-stop or a refusal) and the arm holds:
+            # that ends the segment like the plan's end, rather than idling to h_max.
+            record = self._close_segment("h_max")
         if record is not None:
             self._plan = None  # the segment closed: the next step re-plans and preempts the rest
         if episode_over:

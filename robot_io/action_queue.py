@@ -23,6 +23,15 @@ class ChunkReport:
     done: bool = False
 
 
+@dataclass(frozen=True)
+class Played:
+    """An action taken from the queue, with the chunk and index it came from (what the tick reports)."""
+
+    chunk_seq: int
+    index: int
+    action: np.ndarray
+
+
 class ActionQueue:
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -50,15 +59,21 @@ class ActionQueue:
                 self._reports.append(ChunkReport(chunk_seq, 0, 0, done=True))
             return True
 
-    def pop(self) -> np.ndarray | None:
-        """Next action of the current chunk, or None when the queue is empty."""
+    def take(self) -> Played | None:
+        """Next action of the current chunk with its chunk and index, or None when the queue is empty."""
         with self._lock:
             if not self._actions:
                 return None
             action = self._actions.popleft()
+            played = Played(self._seq, self._executed, action)
             self._executed += 1
             self._reports.append(ChunkReport(self._seq, self._executed, 0, done=not self._actions))
-            return action
+            return played
+
+    def pop(self) -> np.ndarray | None:
+        """Next action of the current chunk, or None when the queue is empty."""
+        played = self.take()
+        return None if played is None else played.action
 
     def clear(self, reason_seq: int = -1) -> int:
         """Drop everything queued (e-stop, holds, reset); returns the number of actions dropped."""

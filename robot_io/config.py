@@ -42,26 +42,53 @@ class IKConfig(Section):
 
 
 class FrankaConfig(Section):
-    """pylibfranka connection and the collision/impedance behaviour set on connect."""
+    """The franky connection, how commands become motions, collision behaviour and fault recovery.
 
-    ip: str = "172.16.0.2"
-    realtime: Literal["enforce", "ignore"] = "ignore"  # libfranka RealtimeConfig
+    ``stream`` picks how each control period's IK target reaches the arm (measured in
+    bench/franka_bench.py): ``velocity`` sends a jerk-limited waypoint reached in one period *at the
+    velocity the IK implies*, so consecutive targets blend into one continuous motion; ``rest`` sends a
+    plain waypoint that the arm approaches to a stop (the stop-and-go that streaming reports describe).
+    """
+
+    ip: str = "172.16.0.2"  # the FCI address (franky-sim: the loopback address it prints)
+    realtime: Literal["enforce", "ignore"] = "ignore"  # libfranka RealtimeConfig (enforce on a PREEMPT_RT PC)
+    stream: Literal["velocity", "rest"] = "velocity"
+    # franky's relative dynamics factor (velocity, acceleration, jerk) for the streamed motions; the IK
+    # already bounds joint speed by robot.velocity_scale.
+    dynamics: tuple[float, float, float] = (1.0, 0.3, 0.3)
+    home_dynamics: float = Field(0.15, gt=0, le=1)  # reset's point-to-point move home
     lower_torque_thresholds: Joints = (20.0,) * 7
     upper_torque_thresholds: Joints = (40.0,) * 7
     lower_force_thresholds: Wrench = (10.0,) * 6
     upper_force_thresholds: Wrench = (20.0,) * 6
     joint_impedance: Joints = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)
-    recover_attempts: int = Field(3, ge=0)
+    # Faults recovered without the operator (libfranka error names, or ``connection_lost``), at most
+    # ``auto_recover_limit`` times until the operator's next release; anything else holds for a release.
+    auto_recover: tuple[str, ...] = ("communication_constraints_violation",)
+    auto_recover_limit: int = Field(3, ge=0)
+    # franky-sim only: robot-io scripts a target (robot.target_motion) and publishes it on sim/target_truth,
+    # since no camera sees the simulator's world.
+    simulated_target: bool = False
+
+    @model_validator(mode="after")
+    def _dynamics_in_range(self) -> FrankaConfig:
+        if not all(0 < f <= 1 for f in self.dynamics):
+            raise ValueError(f"dynamics {self.dynamics}: each factor must be in (0, 1]")
+        return self
 
 
 class RobotConfig(Section):
     """The ``robot:`` section: backend, rates, limits and safety of one arm."""
 
     backend: Literal["pybullet", "franka"] = "pybullet"
+    model: Literal["panda", "fr3"] = "panda"  # robot_io.description.MODELS: IK, FK and limits follow it
     control_rate_hz: float = Field(20.0, ge=1.0, le=1000.0)
     physics_substeps: int = Field(12, ge=1)  # pybullet: physics steps per control period
     # Largest end-effector displacement accepted per control period (the task's 5 cm per step bound).
     max_step_m: float = Field(0.05, gt=0, le=0.05)
+    # Longest chunk (plan) accepted: 25 s at 20 Hz, far beyond any learner's horizon (h_max 50); a longer
+    # one is a learner bug and is refused whole, which also bounds the queue.
+    max_plan_actions: int = Field(500, ge=1)
     joint_margin_rad: float = Field(0.02, ge=0, lt=0.3)  # commands stay this far inside the URDF limits
     velocity_scale: float = Field(0.5, gt=0, le=1)  # fraction of the URDF joint velocity limits for the IK
     watchdog_timeout_s: float = Field(0.5, gt=0)
@@ -71,6 +98,12 @@ class RobotConfig(Section):
     workspace: WorkspaceBox = WorkspaceBox()
     ik: IKConfig = IKConfig()
     franka: FrankaConfig = FrankaConfig()
+
+    @model_validator(mode="after")
+    def _mock_arm_is_a_panda(self) -> RobotConfig:
+        if self.backend == "pybullet" and self.model != "panda":
+            raise ValueError(f"model {self.model!r}: the pybullet mock arm is the Panda; use backend franka")
+        return self
 
     @property
     def period(self) -> float:

@@ -10,17 +10,25 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 from robot_io.action_queue import ActionQueue, ChunkReport
 from robot_io.backends import RobotBackend, make_backend
 from robot_io.config import RobotConfig
+from robot_io.description import RobotDescription
 from robot_io.ik import DifferentialIK
 from robot_io.kinematics import Kinematics
+from robot_io.recovery import RecoveryPolicy
 from robot_io.safety import Safety, SafetyRecord
 
 UNREACHABLE_M = 0.01  # IK ending this far from its goal with no progress means the goal is out of reach
+STEP_TOLERANCE = 1e-9  # relative: a step capped to exactly max_step_m by the sender is not "above" it
+
+Push = Literal["accepted", "bad_plan", "refused", "stale"]
+"""What became of a chunk: queued; refused whole as a bad plan (the arm holds); refused because the arm
+is held (e-stop, pause, lost peer); or ignored as not newer than the current chunk."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +41,9 @@ class ArmState:
     chunk_seq: int
     queue_len: int
     stamp: float
+    tick: int = 0  # control ticks so far (a state read between ticks repeats the last one's)
+    played_chunk: int = -1  # the chunk and index of the action this tick took from the queue; -1: none
+    played_index: int = -1
 
 
 @dataclass
@@ -47,30 +58,69 @@ class RobotController:
     def __init__(self, config: RobotConfig, backend: RobotBackend | None = None) -> None:
         self.config = config
         self.backend = backend if backend is not None else make_backend(config)
-        self.kin = Kinematics()
+        self.kin = Kinematics(RobotDescription(config.model))
         self.home = np.asarray(config.home_q, float)
         self.ik = DifferentialIK(
             config.ik, self.kin.description, config.velocity_scale, config.joint_margin_rad, self.home
         )
         self.queue = ActionQueue()
         self.safety = Safety(config.workspace, config.watchdog_timeout_s)
+        self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
         self._lock = threading.Lock()
         self._pending: list[str] = []  # operator commands, applied at the next tick
         self._jog: list[np.ndarray] = []
         self._unreachable = False
         self._braked = False
+        self.ticks = 0
+        self._played = (-1, -1)  # (chunk, index) taken by the last tick
 
     # -- called from other threads -------------------------------------------------------------------
-    def push_chunk(self, chunk_seq: int, actions: np.ndarray, now: float) -> bool:
+    def plan_problem(self, actions: np.ndarray) -> str | None:
+        """Why ``actions`` (N x 3) is not a playable plan, or None. A plan is refused whole, never
+        trimmed or clipped: a learner that sends a 9 cm step or 10,000 actions has a bug, and playing
+        part of what it meant would hide it."""
+        actions = np.asarray(actions, float)
+        if actions.ndim != 2 or actions.shape[1] != 3:
+            return f"actions of shape {actions.shape}, not N x 3"
+        if not len(actions):
+            return "no actions (a plan has at least one; send zeros to stay put)"
+        if len(actions) > self.config.max_plan_actions:
+            limit = self.config.max_plan_actions
+            return f"{len(actions)} actions, more than robot.max_plan_actions = {limit}"
+        if not np.all(np.isfinite(actions)):
+            return "contains NaN or inf"
+        norms = np.linalg.norm(actions, axis=1)
+        worst = int(np.argmax(norms))
+        if norms[worst] > self.config.max_step_m * (1 + STEP_TOLERANCE):
+            return (
+                f"step {worst} moves {norms[worst]:.4f} m, above robot.max_step_m = {self.config.max_step_m}"
+            )
+        return None
+
+    def refuse_plan(self, kind: str, detail: str) -> None:
+        """A bad plan: nothing of it plays and the arm holds where it is. The rest of the current chunk
+        is dropped (reported with ``preempted_by`` -1: no plan replaced it), because it is what the
+        learner meant to replace; the chunk number, the watchdog and the safety mode do not change, so
+        the next valid plan plays at once (and a learner that only sends bad plans is held by the
+        watchdog)."""
+        with self._lock:
+            dropped = self.queue.clear()
+            self.safety.report(kind, f"{detail}; refused whole, arm holds (dropped {dropped} queued)")
+
+    def push_chunk(self, chunk_seq: int, actions: np.ndarray, now: float) -> Push:
         """Queue a chunk (preempting the rest of the current one); refused while held, bar the watchdog."""
+        problem = self.plan_problem(actions)
+        if problem is not None:
+            self.refuse_plan("bad_plan", f"chunk {chunk_seq}: {problem}")
+            return "bad_plan"
         with self._lock:
             if not self.safety.accepts_commands():
-                return False
-            accepted = self.queue.push(chunk_seq, actions)
-            if accepted:
-                self.safety.command_received(now)
-            return accepted
+                return "refused"
+            if not self.queue.push(chunk_seq, actions):
+                return "stale"
+            self.safety.command_received(now)
+            return "accepted"
 
     def operator(self, command: str, jog: np.ndarray | None = None) -> None:
         """pause | resume | estop | release | jog, from the monitor; e-stop also acts at once."""
@@ -106,17 +156,20 @@ class RobotController:
             chunk_seq=self.queue.chunk_seq,
             queue_len=len(self.queue),
             stamp=js.stamp,
+            tick=self.ticks,
+            played_chunk=self._played[0],
+            played_index=self._played[1],
         )
 
     def _safety_pass(self, now: float) -> bool:
         """Apply operator commands, driver faults and the watchdog; True when the arm must brake now."""
         with self._lock:
+            released = "release" in self._pending
             for command in self._pending:
                 getattr(self.safety, command)()
             self._pending.clear()
-            fault = self.backend.fault()
-            if fault is not None:
-                self.safety.hold("driver_error", fault)
+        self._handle_fault(released)
+        with self._lock:
             self.safety.check_watchdog(now, queue_empty=len(self.queue) == 0)
             if self.safety.may_move:
                 self._braked = False
@@ -125,6 +178,27 @@ class RobotController:
             brake = not self._braked or self.safety.mode == "estop"
             self._braked = True
             return brake
+
+    def _handle_fault(self, released: bool) -> None:
+        """A driver fault holds the arm (``driver_error``, mode ``fault``); recovery, tried on release
+        or automatically (``RecoveryPolicy``), clears it. Recovery can take a reconnect, so it runs
+        outside the lock: e-stops and chunks are not blocked meanwhile."""
+        fault = self.backend.fault()
+        with self._lock:
+            new = fault is not None and self.safety.hold("driver_error", str(fault))
+            held = "driver_error" in self.safety.reasons
+            if new:
+                self.queue.clear()
+        why = self.recovery.reason(fault, new, released, held)
+        if why is None:
+            return
+        ok = self.backend.recover()
+        with self._lock:
+            if ok:
+                self.safety.clear("driver_error", why)
+            else:
+                what = why.split(":")[0]
+                self.safety.report("driver_error", f"{what}: recovery failed, the arm stays held")
 
     def react(self, now: float) -> TickResult:
         """Apply holds at once (between ticks, e.g. on an e-stop) without advancing the period."""
@@ -138,15 +212,18 @@ class RobotController:
         braking = self._safety_pass(now)
         with self._lock:
             jogs, self._jog = self._jog, []
-            action = self.queue.pop() if self.safety.may_move else None
-            if action is not None:
+            played = self.queue.take() if self.safety.may_move else None
+            if played is not None:
                 self.safety.command_received(now)
+            # Taken under the same lock as the pop: a chunk arriving later does not change what ran.
+            self._played = (played.chunk_seq, played.index) if played is not None else (-1, -1)
+            self.ticks += 1
             paused = self.safety.mode == "paused"
         applied = None
         if braking:
             self.backend.hold()
-        elif action is not None:
-            applied = self._execute(action)
+        elif played is not None:
+            applied = self._execute(played.action)
         elif jogs and paused:
             for jog in jogs:
                 applied = self._execute(jog)
@@ -160,6 +237,15 @@ class RobotController:
         self.backend.step()
         return TickResult(self.state(), applied, self.safety.drain(), [])
 
+    def _anchor(self, q: np.ndarray, q_cmd: np.ndarray | None) -> np.ndarray:
+        """Where this period's action starts: the commanded configuration while the arm tracks it within
+        one step (the action moves the commanded end effector, as on any position-controlled arm), else
+        the measured one, so a blocked arm never lets the command run away from it."""
+        if q_cmd is None:
+            return q
+        gap = float(np.linalg.norm(self.kin.ee_position(q_cmd) - self.kin.ee_position(q)))
+        return q_cmd if gap <= self.config.max_step_m else q
+
     def _execute(self, action: np.ndarray) -> np.ndarray:
         """Displace the end-effector goal by ``action`` (≤ max_step_m), clip, solve IK, check, send."""
         action = np.asarray(action, float).reshape(3)
@@ -167,9 +253,10 @@ class RobotController:
         if norm > self.config.max_step_m:
             action = action * (self.config.max_step_m / norm)
         js = self.backend.read_state()
-        goal = self.safety.clip_goal(self.kin.ee_position(js.q) + action)
-        start_error = float(np.linalg.norm(self.kin.ee_position(js.q) - goal))
-        result = self.ik.solve(js.q, goal, self.config.period)
+        q0 = self._anchor(js.q, js.q_cmd)
+        goal = self.safety.clip_goal(self.kin.ee_position(q0) + action)
+        start_error = float(np.linalg.norm(self.kin.ee_position(q0) - goal))
+        result = self.ik.solve(q0, goal, self.config.period)
         # Out of reach: the QP ends far from the goal and cannot get any closer (limits are active).
         stalled = result.error > UNREACHABLE_M and start_error - result.error < 1e-3
         if stalled and not self._unreachable:
@@ -180,7 +267,7 @@ class RobotController:
         self._unreachable = stalled
         check = self.kin.check(
             result.q,
-            js.q,
+            q0,
             self.config.period,
             self.config.joint_margin_rad,
             self.config.velocity_scale,
@@ -197,6 +284,7 @@ class RobotController:
         """Home pose and (in simulation) a new target motion; clears the queue and the watchdog."""
         with self._lock:
             self.queue.clear()
+            self._played = (-1, -1)
             self.safety.last_command = None
             self.safety.clear("watchdog", "reset")
         self.backend.reset(self.home, seed)

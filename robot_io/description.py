@@ -1,9 +1,11 @@
 """Robot descriptions: which arm (a registry keyed by model name) and its URDF in each library's form.
 
 A model's identity (URDF, arm and finger joints, end-effector frame, home pose) is a ``RobotModel`` in
-``MODELS``; a second model (``fr3``) is one more entry, chosen by name. Joint limits are read from the
-URDF, never copied. PyBullet loads the URDF as is (robot_io's PyBullet backend hands the model to
-sim's scene). Pinocchio loads the same file and locks the fingers (the arm is what we control).
+``MODELS``, chosen by name (``robot.model``): ``panda`` (the Franka Emika Robot of the paper, pybullet's
+URDF) and ``fr3`` (Franka Research 3, ``robot_io/descriptions/fr3.urdf``, kinematics only; see the NOTICE
+there). The two arms share their kinematic chain but not their joint limits, so limits are read from
+the model's own URDF, never copied. PyBullet loads the URDF as is (robot_io's PyBullet backend hands
+the model to sim's scene). Pinocchio loads the same file and locks the fingers (the arm is what we control).
 MuJoCo (for mink) gets a form generated here: visual and collision geometry stripped (IK needs
 kinematics only, and MuJoCo cannot resolve ``package://`` mesh paths), finger joints made fixed, and
 ``fusestatic`` off so the fixed-joint tool-centre-point body survives as a frame.
@@ -23,6 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pybullet_data
 
+DESCRIPTIONS = Path(__file__).parent / "descriptions"
+
 if TYPE_CHECKING:
     import mujoco
     import pinocchio as pin
@@ -37,6 +41,7 @@ class RobotModel:
     arm_joints: tuple[str, ...]
     finger_joints: tuple[str, ...]
     ee_link: str  # the tool centre point frame that IK, FK and the workspace box refer to
+    flange_link: str  # the arm's flange, where libfranka's own kinematics end (checked at connect)
     home_q: tuple[float, ...]  # the pose reset and startup go to
     finger_opening: float  # the fingers are held (PyBullet) and locked (Pinocchio) at this opening
 
@@ -48,7 +53,19 @@ MODELS: dict[str, RobotModel] = {
         arm_joints=tuple(f"panda_joint{i}" for i in range(1, 8)),
         finger_joints=("panda_finger_joint1", "panda_finger_joint2"),
         ee_link="panda_grasptarget",  # 0.105 m beyond the hand flange
+        flange_link="panda_link8",
         # A comfortable pose above the table, the usual Panda "ready" configuration.
+        home_q=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
+        finger_opening=0.04,
+    ),
+    "fr3": RobotModel(
+        name="fr3",
+        urdf_path=DESCRIPTIONS / "fr3.urdf",
+        arm_joints=tuple(f"fr3_joint{i}" for i in range(1, 8)),
+        finger_joints=("fr3_finger_joint1", "fr3_finger_joint2"),
+        ee_link="fr3_hand_tcp",  # 0.1034 m beyond the flange, as Franka's own end-effector default
+        flange_link="fr3_link8",
+        # The same "ready" pose: inside the FR3's tighter joint 4 and 6 ranges too.
         home_q=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
         finger_opening=0.04,
     ),

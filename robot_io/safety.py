@@ -13,7 +13,7 @@ import numpy as np
 
 from robot_io.config import WorkspaceBox
 
-RUNNING, PAUSED, HELD, ESTOP = "running", "paused", "held", "estop"
+RUNNING, PAUSED, HELD, ESTOP, FAULT = "running", "paused", "held", "estop", "fault"
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,8 @@ class Safety:
     def mode(self) -> str:
         if "estop" in self.reasons:
             return ESTOP
+        if "driver_error" in self.reasons:
+            return FAULT  # the driver stopped the arm: these ticks are no steps to learn from
         if "pause" in self.reasons:
             return PAUSED
         return HELD if self.reasons else RUNNING
@@ -83,9 +85,10 @@ class Safety:
         return self.clear("pause", "operator resume")
 
     def release(self) -> bool:
-        """Operator release: clears the e-stop, a pause and a watchdog hold (not a missing peer)."""
+        """Operator release: clears the e-stop, a pause and a watchdog hold (not a missing peer, and not a
+        driver fault: only a successful recovery clears that, see ``robot_io.recovery``)."""
         changed = False
-        for reason in ("estop", "pause", "watchdog", "ik_unreachable", "driver_error"):
+        for reason in ("estop", "pause", "watchdog", "ik_unreachable"):
             changed |= self.clear(reason, "operator release")
         return changed
 

@@ -11,4 +11,4 @@ fi
 python -m pip install -q --upgrade pip
 # CPU torch first (a local wheel here; a range would pull a multi-GB CUDA build).
 python -m pip install -q "torch==2.13.0"
-python -m pip install -q -e ".[dev,baselines]"
+python -m pip install -q -e ".[dev,baselines,franky-sim]"  # franky-sim: the Franka path is tested against franky-sim

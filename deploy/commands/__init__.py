@@ -27,6 +27,31 @@ def setup_logging(level: str) -> None:
 
 
 SUPERVISOR_ENV = "ADAPTIVEH_SUPERVISOR_PID"
+TOKEN_ENV = "ADAPTIVEH_TOKEN"  # the operator token reaches a part through its environment, never argv
+
+
+def add_token_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--token-file",
+        default="",
+        help=f"file (mode 0600) holding the operator token; default: the {TOKEN_ENV} environment variable",
+    )
+
+
+def operator_token(args: argparse.Namespace) -> str:
+    """The operator token from ``--token-file`` or ``$ADAPTIVEH_TOKEN`` ("" if neither).
+
+    Never a command-line value: any local user reads another's argv with ``ps``. A token file that
+    others can read is refused for the same reason.
+    """
+    if not args.token_file:
+        return os.environ.get(TOKEN_ENV, "")
+    st = os.stat(args.token_file)
+    if st.st_mode & 0o077:
+        mode = oct(st.st_mode & 0o777)
+        raise SystemExit(f"{args.token_file}: readable by others (mode {mode}); chmod 600 it")
+    with open(args.token_file) as fh:
+        return fh.read().strip()
 
 
 def die_with_supervisor() -> None:

@@ -1,4 +1,5 @@
-"""``adaptiveh bench paper``: the command line of the paper's experiments (``experiments.paper``)."""
+"""``adaptiveh bench paper`` / ``bench plans``: the paper's experiments (``experiments.paper``) and the plans
+experiment (``experiments.plans``)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    bench = subparsers.add_parser("bench", help="benchmarks: the paper's experiments")
+    bench = subparsers.add_parser("bench", help="benchmarks: the paper's experiments, the plans experiment")
     kinds = bench.add_subparsers(dest="bench", required=True)
     paper = kinds.add_parser(
         "paper",
@@ -30,6 +31,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     paper.add_argument("--no-progress", action="store_true", help="no progress bar")
     paper.set_defaults(func=_paper)
+    plans = kinds.add_parser(
+        "plans",
+        help="plan execution: AdaptiveH against the fixed-H front (return vs re-plans), latency, H slow/fast",
+        description="Every run in plan execution: fixed-H RKHS at H in {1,2,5,10,20,50} as a front, "
+        "AdaptiveH (plan retreat at 0.5/0.8/0.9, local retreat) as points, a learner-latency sweep, on NS "
+        "CartPole slow/fast, NS Pendulum, NS Reach slow/fast, seeds 0-4. Resumable; writes summary.json, "
+        "summary.md and front.png, latency.png, h_drift.png from all finished runs.",
+    )
+    plans.add_argument("--quick", action="store_true", help="2 seeds, 1k steps (500 on Reach): a smoke run")
+    plans.add_argument(
+        "--out", type=Path, default=None, help="results/plans (results/plans_quick if --quick)"
+    )
+    plans.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs in parallel")
+    plans.add_argument("--seeds", type=int, default=None, help="override the number of seeds")
+    plans.add_argument("--latency-seeds", type=int, default=None, help="seeds of the latency sweep")
+    plans.add_argument("--steps", type=int, default=None, help="override the step budget of every setting")
+    plans.add_argument("--settings", nargs="+", default=None, help="subset of settings (default: all)")
+    plans.add_argument(
+        "--paper-dir",
+        type=Path,
+        default=Path("results/paper"),
+        help="the paper bench's results: TD3/DDPG closed-loop reference points",
+    )
+    plans.add_argument(
+        "--report-only", action="store_true", help="only rebuild the report from finished runs"
+    )
+    plans.add_argument("--no-progress", action="store_true", help="no progress bar")
+    plans.set_defaults(func=_plans)
 
 
 def _paper(args: argparse.Namespace) -> int:
@@ -52,4 +81,28 @@ def _paper(args: argparse.Namespace) -> int:
     )
     print(format_verdicts(summary))
     print(f"figures and summary.json in {out}; missing runs: {len(summary['missing_runs'])}")
+    return 1 if summary["failed_runs"] else 0
+
+
+def _plans(args: argparse.Namespace) -> int:
+    from experiments.plans import main_plans
+    from experiments.tables import format_verdicts
+
+    if args.jobs < 1:
+        raise SystemExit("--jobs must be >= 1")
+    out = args.out or Path("results/plans_quick" if args.quick else "results/plans")
+    summary = main_plans(
+        quick=args.quick,
+        out=out,
+        jobs=args.jobs,
+        seeds=args.seeds,
+        latency_seeds=args.latency_seeds,
+        steps=args.steps,
+        settings=args.settings,
+        report_only=args.report_only,
+        progress=not args.no_progress,
+        paper_dir=args.paper_dir,
+    )
+    print(format_verdicts(summary))
+    print(f"figures, summary.json and summary.md in {out}; missing runs: {len(summary['missing_runs'])}")
     return 1 if summary["failed_runs"] else 0

@@ -8,7 +8,7 @@ import logging
 import signal
 import sys
 
-from deploy.commands import setup_logging
+from deploy.commands import add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps", type=int, default=None, help="override learner.steps (total, including resumed)"
     )
     p.add_argument("--checkpoint-dir", default=None, help="override learner.checkpoint_dir")
-    p.add_argument("--token", default="", help="operator token required on pause/resume")
+    add_token_argument(p)
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=run)
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(args.log_level)
     overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
     cfg = load_stack_config(args.config, learner=overrides)
-    node = LearnerNode(cfg, control_token=args.token)
+    node = LearnerNode(cfg, control_token=operator_token(args))
     on_stop_signal(node.request_stop, signal.SIGTERM, signal.SIGINT)
     lc = cfg.learner
     logging.info(

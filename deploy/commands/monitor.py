@@ -1,31 +1,46 @@
-"""``adaptiveh monitor``: serve the operator's web page for one robot (prints the control token)."""
+"""``adaptiveh monitor``: serve the operator's web page for one robot (prints the control token), and the
+Foxglove live view beside it (``monitor.foxglove_port``; prints its ``ws://`` URL)."""
 
 from __future__ import annotations
 
 import argparse
 
-from deploy.commands import add_part_arguments, setup_logging
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("monitor", help="serve the monitor web page (retreats, chunks, camera, e-stop)")
     add_part_arguments(p, "name, zenoh, monitor")
     p.add_argument("--port", type=int, default=None, help="override monitor.port (0: any free port)")
-    p.add_argument("--token", default="", help="control token (default: a random one, printed)")
+    add_token_argument(p)
+    p.add_argument(
+        "--foxglove-port", type=int, default=None, help="override monitor.foxglove_port (0: any free port)"
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from deploy.config import load_stack_config
+    from deploy.foxglove.derive import SceneSetup
+    from deploy.foxglove.live import start_live
     from deploy.monitor.server import MonitorConfig, MonitorServer
     from deploy.node import run_until_stopped
     from deploy.transport import Bus, open_session
 
     setup_logging(args.log_level)
-    cfg = load_stack_config(args.config, monitor={"port": args.port})
+    cfg = load_stack_config(args.config, monitor={"port": args.port, "foxglove_port": args.foxglove_port})
+    mcfg = cfg.monitor or MonitorConfig()
     bus = Bus(open_session(cfg.zenoh), cfg.name)
-    server = MonitorServer(bus, cfg.monitor or MonitorConfig(), args.token or None)  # no section: defaults
+    server = MonitorServer(bus, mcfg, operator_token(args) or None)  # else random
+    setup = SceneSetup.from_stack(cfg)
+    live = start_live(bus.session, cfg.name, setup, mcfg.host, mcfg.foxglove_port, cfg.recording.exclude)
     print(f"monitor: {server.url}?token={server.token}", flush=True)
     print(f"monitor token: {server.token}", flush=True)
-    run_until_stopped(server, args.duration)
+    if live is not None:
+        print(f"foxglove: {live.url}", flush=True)
+    try:
+        run_until_stopped(server, args.duration)
+    finally:
+        if live is not None:
+            live.close()
     return 0

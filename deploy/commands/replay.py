@@ -40,16 +40,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from deploy.config import load_stack_config
+    from deploy.foxglove.derive import SceneSetup
+    from deploy.foxglove.live import start_live
     from deploy.monitor.server import MonitorConfig, MonitorServer
     from deploy.node import on_stop_signal
-    from deploy.recording import read, recorded_robot, replay
+    from deploy.recording import read, recorded_robot, replay, replayable
     from deploy.transport import Bus, open_session
 
     setup_logging(args.log_level)
     stack = load_stack_config(args.config, monitor={"port": args.port})
     zc, mcfg = stack.zenoh, stack.monitor or MonitorConfig()
     try:
-        records = read(args.file)
+        records = replayable(read(args.file))  # the robot's topics: not the derived Foxglove channels
         robot = args.robot or (recorded_robot(records[0][0]) + "-replay" if records else "replay")
     except Exception as exc:  # mcap raises its own types on a damaged file
         logging.error("%s: not a readable recording: %s", args.file, exc)
@@ -57,10 +59,13 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     on_stop_signal(stop.set, signal.SIGTERM, signal.SIGINT)
     session = open_session(zc)
-    server = None
+    server = live = None
     if not args.no_monitor:
         server = MonitorServer(Bus(session, robot), mcfg).start()
         print(f"monitor: {server.url}?token={server.token}", flush=True)
+        live = start_live(session, robot, SceneSetup.from_stack(stack), mcfg.host, mcfg.foxglove_port)
+        if live is not None:
+            print(f"foxglove: {live.url}", flush=True)
     print(f"replaying {len(records)} messages as adaptiveh/{robot}/...", flush=True)
     try:
         n = replay(
@@ -76,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
             print("replay done; the monitor stays up (Ctrl-C stops it)", flush=True)
             stop.wait(args.keep if args.keep >= 0 else None)
     finally:
+        if live is not None:
+            live.close()
         if server is not None:
             server.stop()  # closes its bus, and with it the session
         else:

@@ -5,14 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import add_part_arguments, setup_logging
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("robot-io", help="run the robot interface (mock or Franka) over Zenoh")
     add_part_arguments(p, "name, zenoh, robot")
     p.add_argument("--watch", default="learner", help="comma-separated peers whose absence holds the arm")
-    p.add_argument("--token", default="", help="operator token required on control messages (e-stop exempt)")
+    add_token_argument(p)
     p.set_defaults(func=run)
 
 
@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(args.log_level)
     cfg = load_stack_config(args.config)
     watch = tuple(p for p in args.watch.split(",") if p)
-    node = RobotIONode(cfg, watch_peers=watch, control_token=args.token)
+    node = RobotIONode(cfg, watch_peers=watch, control_token=operator_token(args))
     robot = cfg.robot
     logging.info("robot-io '%s' up: backend %s at %.0f Hz", cfg.name, robot.backend, robot.control_rate_hz)
     run_until_stopped(node, args.duration)

@@ -7,7 +7,7 @@ import json
 import logging
 import signal
 
-from deploy.commands import setup_logging
+from deploy.commands import add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -16,8 +16,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--check", action="store_true", help="validate the config and look for drivers; start nothing"
     )
+    p.add_argument(
+        "--probe-arm", action="store_true", help="with --check: connect to the Franka and read its version"
+    )
     p.add_argument("--steps", type=int, default=None, help="override learner.steps")
-    p.add_argument("--token", default="", help="operator token (default: random, printed)")
+    add_token_argument(p)  # default: a random token, printed
     p.add_argument("--summary", default="", help="also write the summary JSON here")
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=run)
@@ -29,11 +32,11 @@ def run(args: argparse.Namespace) -> int:
 
     setup_logging(args.log_level)
     if args.check:
-        ok, lines = check(args.config)
+        ok, lines = check(args.config, probe_arm=args.probe_arm)
         for line in lines:
             print(line)
         return 0 if ok else 1
-    stack = Stack(args.config, token=args.token or None, steps=args.steps)
+    stack = Stack(args.config, token=operator_token(args) or None, steps=args.steps)
     print(f"operator token: {stack.token}", flush=True)
     on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:

@@ -1,5 +1,10 @@
 """The monitor process: collects the robot's Zenoh traffic and serves it to one local web page.
 
+Plans (chunks that carry a predicted end-effector path, ``learner.execution: plan``) are kept with the
+path the arm really took while each played (from the ticks that name the plan's actions), where a newer
+plan cut them short (the tick, and whether that plan came from a retreat) and their executed / dropped /
+queued counts, so the page can draw planned against executed and the abandoned rest in red.
+
 stdlib ``http.server`` on 127.0.0.1; the page polls ``/api/state`` (JSON) and ``/api/image.jpg``
 (the vision node's annotated JPEG) a few times a second. ``POST /api/control`` turns a button or a jog
 key into a ``Control`` message; it needs the token printed at start (``X-Token`` header or ``token``
@@ -29,6 +34,7 @@ from deploy.transport import Bus
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
+PLANS_KEPT = 8  # the current plan and the recent ones the page draws
 
 
 class MonitorConfig(Section):
@@ -37,6 +43,8 @@ class MonitorConfig(Section):
     host: str = "127.0.0.1"
     port: int = Field(8765, ge=0, le=65535)  # 0: any free port
     history: int = Field(600, ge=10)  # points kept per plot
+    # Foxglove WebSocket live view on ``host`` (deploy.foxglove.live); 0: any free port; null: off
+    foxglove_port: int | None = Field(8766, ge=0, le=65535)
 
 
 class MonitorState:
@@ -58,8 +66,17 @@ class MonitorState:
         self.current_chunk: dict[str, Any] = {}
         self.image: bytes = b""
         self.image_detected = False
-        self.counts = {"retreats": 0, "segments": 0, "dropped": 0, "safety": 0, "messages": 0}
+        self.counts = {
+            "retreats": 0,
+            "segments": 0,
+            "dropped": 0,
+            "dropped_at_retreat": 0,
+            "safety": 0,
+            "messages": 0,
+        }
         self._n_state = 0
+        self.plans: dict[int, dict[str, Any]] = {}  # chunk seq -> plan, the newest PLANS_KEPT
+        self._retreat_segments: deque[int] = deque(maxlen=50)  # segments that ended in a retreat
         bus.subscribe(m.STATE, self._state)
         bus.subscribe(m.TARGET, self._target)
         bus.subscribe(m.EVENTS_RETREAT, self._retreat)
@@ -83,6 +100,11 @@ class MonitorState:
             self._n_state += 1
             if self._n_state % 2 == 0:
                 self.ee.append([round(x, 4) for x in s.ee_pos])
+            plan = self.plans.get(s.played_chunk)
+            if plan is not None and s.tick > plan["last_tick"]:  # a state between ticks repeats its tick
+                plan["path"].append([round(x, 4) for x in s.ee_pos])
+                plan["executed"] = s.played_index + 1
+                plan["last_tick"] = s.tick
 
     def _target(self, t: m.Target) -> None:
         if t.valid:
@@ -98,6 +120,8 @@ class MonitorState:
             self.segments.append({"segment": e.segment, "H": e.H, "reason": reason, "step": e.global_step})
             for x in e.statistic:
                 self.statistic.append((e.segment, round(x, 5), reason))
+            if reason == "retreat":
+                self._retreat_segments.append(e.segment)
 
     def _chunk(self, c: m.ActionChunk) -> None:
         with self.lock:
@@ -108,12 +132,42 @@ class MonitorState:
                 "executed": 0,
                 "dropped": 0,
             }
+            if c.predicted_ee:
+                self._plan(c)
+
+    def _plan(self, c: m.ActionChunk) -> None:
+        """A new plan: its predicted path, starting where the arm is now (caller holds the lock)."""
+        start = [round(x, 4) for x in self.robot.get("ee", [])]
+        planned = [[round(x, 4) for x in c.predicted_ee[i : i + 3]] for i in range(0, len(c.predicted_ee), 3)]
+        self.plans[c.seq] = {
+            "chunk_seq": c.seq,
+            "segment": c.segment,
+            "n": len(c.actions) // 3,
+            "planned": ([start] if start else []) + planned,
+            "path": [start] if start else [],
+            "executed": 0,
+            "dropped": 0,
+            "last_tick": -1,
+            "parted_tick": None,  # the tick of the last action played before a newer plan cut it short
+            "by_retreat": False,
+            "done": False,
+        }
+        for old in sorted(self.plans)[:-PLANS_KEPT]:
+            del self.plans[old]
 
     def _status(self, s: m.ChunkStatus) -> None:
         with self.lock:
             self.counts["dropped"] += s.dropped
             if self.current_chunk.get("chunk_seq") == s.chunk_seq:
                 self.current_chunk.update(executed=s.executed, dropped=s.dropped)
+            plan, by = self.plans.get(s.chunk_seq), self.plans.get(s.preempted_by)
+            if plan is not None:
+                plan.update(executed=s.executed, dropped=s.dropped, done=s.done)
+                if s.dropped and s.preempted_by >= 0:
+                    plan["parted_tick"] = plan["last_tick"]
+                    # A retreat closes segment k; the plan it makes opens segment k + 1.
+                    plan["by_retreat"] = by is not None and by["segment"] - 1 in self._retreat_segments
+                    self.counts["dropped_at_retreat"] += s.dropped if plan["by_retreat"] else 0
             if s.done:
                 self.chunks.append(
                     {
@@ -156,6 +210,11 @@ class MonitorState:
                 "returns": list(self.returns),
                 "safety": list(self.safety)[-20:],
                 "counts": dict(self.counts),
+                "plans": [
+                    {k: v for k, v in p.items() if k != "last_tick"}
+                    | {"queued": max(0, p["n"] - p["executed"] - p["dropped"])}
+                    for p in sorted(self.plans.values(), key=lambda p: p["chunk_seq"])
+                ],
                 "image": bool(self.image),
                 "detected": self.image_detected,
             }

@@ -13,7 +13,7 @@ LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
 length_multiple: _descriptor.FieldDescriptor
 
 class RobotState(_message.Message):
-    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len")
+    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index")
     class Mode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         MODE_UNSPECIFIED: _ClassVar[RobotState.Mode]
@@ -21,11 +21,13 @@ class RobotState(_message.Message):
         PAUSED: _ClassVar[RobotState.Mode]
         HELD: _ClassVar[RobotState.Mode]
         ESTOP: _ClassVar[RobotState.Mode]
+        FAULT: _ClassVar[RobotState.Mode]
     MODE_UNSPECIFIED: RobotState.Mode
     RUNNING: RobotState.Mode
     PAUSED: RobotState.Mode
     HELD: RobotState.Mode
     ESTOP: RobotState.Mode
+    FAULT: RobotState.Mode
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     Q_FIELD_NUMBER: _ClassVar[int]
@@ -35,6 +37,9 @@ class RobotState(_message.Message):
     MODE_FIELD_NUMBER: _ClassVar[int]
     CHUNK_SEQ_FIELD_NUMBER: _ClassVar[int]
     QUEUE_LEN_FIELD_NUMBER: _ClassVar[int]
+    TICK_FIELD_NUMBER: _ClassVar[int]
+    PLAYED_CHUNK_FIELD_NUMBER: _ClassVar[int]
+    PLAYED_INDEX_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     q: _containers.RepeatedScalarFieldContainer[float]
@@ -44,7 +49,10 @@ class RobotState(_message.Message):
     mode: RobotState.Mode
     chunk_seq: int
     queue_len: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ...) -> None: ...
+    tick: int
+    played_chunk: int
+    played_index: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ...) -> None: ...
 
 class Target(_message.Message):
     __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status")
@@ -113,16 +121,18 @@ class AnnotatedImage(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., jpeg: _Optional[bytes] = ..., detected: _Optional[bool] = ...) -> None: ...
 
 class ActionChunk(_message.Message):
-    __slots__ = ("seq", "stamp", "actions", "segment")
+    __slots__ = ("seq", "stamp", "actions", "segment", "predicted_ee")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     ACTIONS_FIELD_NUMBER: _ClassVar[int]
     SEGMENT_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_EE_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     actions: _containers.RepeatedScalarFieldContainer[float]
     segment: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ...) -> None: ...
+    predicted_ee: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ..., predicted_ee: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class ChunkStatus(_message.Message):
     __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done")
@@ -190,6 +200,7 @@ class SafetyEvent(_message.Message):
         DRIVER_ERROR: _ClassVar[SafetyEvent.Kind]
         BAD_FRAME: _ClassVar[SafetyEvent.Kind]
         CAMERA_ERROR: _ClassVar[SafetyEvent.Kind]
+        BAD_PLAN: _ClassVar[SafetyEvent.Kind]
     KIND_UNSPECIFIED: SafetyEvent.Kind
     WORKSPACE: SafetyEvent.Kind
     JOINT_LIMIT: SafetyEvent.Kind
@@ -204,6 +215,7 @@ class SafetyEvent(_message.Message):
     DRIVER_ERROR: SafetyEvent.Kind
     BAD_FRAME: SafetyEvent.Kind
     CAMERA_ERROR: SafetyEvent.Kind
+    BAD_PLAN: SafetyEvent.Kind
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from robot_io.backends.protocol import JointState, RobotBackend
+from robot_io.backends.protocol import Fault, JointState, RobotBackend
 from robot_io.config import RobotConfig
 
 
@@ -11,9 +11,9 @@ def make_backend(config: RobotConfig) -> RobotBackend:
         from robot_io.backends.pybullet_backend import PyBulletBackend
 
         return PyBulletBackend(config)
-    from robot_io.backends.franka_backend import FrankaBackend
+    from robot_io.backends.franky_backend import FrankyBackend
 
-    return FrankaBackend(config)
+    return FrankyBackend(config)
 
 
-__all__ = ["JointState", "RobotBackend", "make_backend"]
+__all__ = ["Fault", "JointState", "RobotBackend", "make_backend"]

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robot_io.backends.protocol import JointState
+from robot_io.backends.protocol import Fault, JointState
 from robot_io.config import RobotConfig
 from robot_io.description import robot_model
 from sim.panda_scene import PandaScene
@@ -22,7 +22,7 @@ class PyBulletBackend:
             motion=config.target_motion,
             seed=config.seed,
             time_step=config.period / config.physics_substeps,
-            robot=robot_model("panda"),
+            robot=robot_model(config.model),  # the config allows the Panda only here
         )
         self.substeps = config.physics_substeps
         self.scene.reset_robot(config.home_q)
@@ -42,8 +42,8 @@ class PyBulletBackend:
     def hold(self) -> None:
         self.scene.brake()
 
-    def fault(self) -> str | None:
-        return None
+    def fault(self) -> Fault | None:
+        return None  # the mock has no driver that could stop it
 
     def recover(self) -> bool:
         return True  # the mock has no driver errors to clear

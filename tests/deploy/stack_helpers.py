@@ -27,6 +27,7 @@ def write_stack_config(
         cfg["vision"]["rate_hz"] = vision_rate_hz
     cfg["learner"].update({"checkpoint_dir": str(directory / "learner"), **learner})
     cfg["monitor"]["port"] = 0
+    cfg["monitor"]["foxglove_port"] = 0  # the live Foxglove view on a free port too
     cfg["recording"]["dir"] = str(directory / "rec")
     path = directory / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))

@@ -1,5 +1,6 @@
-"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run:
-retreat events arrive, E-STOP holds the arm, release lets learning resume. Saves a screenshot."""
+"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run in
+plan execution: retreat events arrive, plans show planned against executed, E-STOP holds the arm,
+release lets learning resume. Saves a screenshot."""
 
 import json
 import re
@@ -48,7 +49,7 @@ def _wait(pred, timeout: float, what: str):
 def test_monitor_in_chromium(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    path, cfg = write_stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000)
+    path, cfg = write_stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000, execution="plan")
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
     )
@@ -65,6 +66,9 @@ def test_monitor_in_chromium(tmp_path):
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             page.goto(f"{url}?token={token}")
             _wait(lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page")
+            _wait(lambda: "executed" in page.inner_text("#plans"), 30, "plans on the page")
+            plans = _state(url)["plans"]
+            assert plans and all(len(p["planned"]) == p["n"] + 1 for p in plans)  # the path travels along
             page.click("#estop")
             _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "the page showing estop")
             ee0 = _state(url)["robot"]["ee"]

@@ -1,6 +1,7 @@
 """A short ``adaptiveh up`` run records every part's traffic to MCAP; the file decodes with the mcap
-reader and the protobuf schema stored in it alone (no project code); ``adaptiveh replay`` puts it back
-on Zenoh, where a subscriber and the monitor's JSON endpoint receive it."""
+reader and the protobuf schema stored in it alone (no project code), Foxglove's well-known channels
+included; ``adaptiveh replay`` puts the robot's own channels back on Zenoh, where a subscriber and the
+monitor's JSON endpoint receive them."""
 
 from __future__ import annotations
 
@@ -65,16 +66,20 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path, list]:
     )
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     mcap = Path(json.loads(out.read_text())["recording"])
-    records, decoders = [], {}
+    records, decoders, json_schemas = [], {}, {}
     with open(mcap, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-            assert schema.encoding == "protobuf"
+            assert schema.encoding in ("protobuf", "jsonschema")  # JSON: derived plot values only
             records.append(
                 (channel.topic, schema.name, channel.message_encoding, message.sequence, message.data)
             )
-            decoders[schema.name] = decoders.get(schema.name) or schema_decoder(schema.name, schema.data)
+            if schema.encoding == "jsonschema":
+                json_schemas[schema.name] = json.loads(schema.data)
+            elif schema.name not in decoders:
+                decoders[schema.name] = schema_decoder(schema.name, schema.data)
     cfg["_path"] = str(path)
     cfg["_decoders"] = decoders
+    cfg["_json_schemas"] = json_schemas
     return cfg, mcap, records
 
 
@@ -82,18 +87,61 @@ def test_recording_has_every_type_decodable(run: tuple[dict, Path, list]) -> Non
     cfg, _, records = run
     assert TYPES <= {r[1] for r in records}, Counter(r[1] for r in records)
     assert not any(r[1] == "adaptiveh.CameraFrame" for r in records)  # excluded in sim.yaml: huge
-    decoders, last_seq = cfg["_decoders"], {}
+    decoders, json_schemas, last_seq = cfg["_decoders"], cfg["_json_schemas"], {}
     for topic, schema, encoding, seq, data in records:
-        assert topic.startswith(f"adaptiveh/{cfg['name']}/") and encoding == "protobuf"
-        msg = decoders[schema].FromString(data)  # the schema in the file alone, no project code
-        assert msg.DESCRIPTOR.full_name == schema and msg.SerializeToString() == data
+        assert topic.startswith(f"adaptiveh/{cfg['name']}/")
         assert seq > last_seq.get(topic, 0)  # per-channel sequence, in time order
         last_seq[topic] = seq
+        if encoding == "json":
+            value = json.loads(data)
+            assert set(value) == set(json_schemas[schema]["properties"]), (schema, value)
+            continue
+        assert encoding == "protobuf"
+        msg = decoders[schema].FromString(data)  # the schema in the file alone, no project code
+        assert msg.DESCRIPTOR.full_name == schema and msg.SerializeToString() == data
         if schema == "adaptiveh.RobotState":  # joint positions are numbers in every state message
             assert len(msg.q) == 7 and all(isinstance(x, float) for x in msg.q), msg
     telemetry = decoders["adaptiveh.LearnerTelemetry"]
     steps = [telemetry.FromString(d).global_step for _, s, _, _, d in records if s.endswith("Telemetry")]
     assert max(steps) == cfg["learner"]["steps"]  # the learner's last telemetry made it into the file
+
+
+def _derived(cfg: dict, records: list, channel: str) -> list:
+    """The messages of ``adaptiveh/<name>/foxglove/<channel>``, decoded with the file's schema alone."""
+    topic = f"adaptiveh/{cfg['name']}/foxglove/{channel}"
+    return [cfg["_decoders"][s].FromString(d) for t, s, _, _, d in records if t == topic]
+
+
+def test_recording_has_foxglove_well_known_channels(run: tuple[dict, Path, list]) -> None:
+    """Image, transforms, scene and robot channels carry Foxglove's schema names and decode with them."""
+    cfg, _, records = run
+    schemas = {t.rsplit("/", 1)[1]: s for t, s, *_ in records if "/foxglove/" in t}
+    assert schemas == {
+        "camera": "foxglove.CompressedImage",
+        "tf": "foxglove.FrameTransforms",
+        "scene": "foxglove.SceneUpdate",
+        "robot": "foxglove.SceneUpdate",
+        "distance": "adaptiveh.foxglove.Distance",
+        "retreat": "adaptiveh.foxglove.RetreatPoint",
+    } | ({"log": "foxglove.Log"} if "log" in schemas else {})
+    images = _derived(cfg, records, "camera")
+    assert images and all(i.format == "jpeg" and i.data[:2] == b"\xff\xd8" for i in images)
+    n_states = sum(s == "adaptiveh.RobotState" for _, s, *_ in records)
+    frames = Counter(tf.child_frame_id for msg in _derived(cfg, records, "tf") for tf in msg.transforms)
+    assert frames["ee"] == n_states  # the ee at every state, the links and camera every other state
+    assert frames["camera"] == frames["panda_hand"] == (n_states + 1) // 2
+    parents = {tf.parent_frame_id for msg in _derived(cfg, records, "tf") for tf in msg.transforms}
+    assert frames["target"] > 0 and parents == {"base"}
+    scenes = _derived(cfg, records, "scene")
+    ids = Counter(e.id for u in scenes for e in u.entities)
+    assert ids["executed"] > 0 and ids["target"] > 0, ids
+    assert all(u.deletions[0].type == 1 for u in scenes)  # each update replaces the last (ALL)
+    (robot,) = _derived(cfg, records, "robot")  # the meshes, once
+    models = {e.frame_id: e.models[0] for e in robot.entities if e.frame_locked}
+    assert {"panda_link0", "panda_link7", "panda_hand"} <= set(models) <= set(frames)
+    for model in models.values():  # binary STL: 80-byte header, count, 50 bytes per triangle
+        n = int.from_bytes(model.data[80:84], "little")
+        assert model.media_type == "model/stl" and len(model.data) == 84 + 50 * n and n > 10
 
 
 def _replay(cfg: dict, mcap: Path, *extra: str) -> subprocess.Popen:
@@ -107,6 +155,8 @@ def _replay(cfg: dict, mcap: Path, *extra: str) -> subprocess.Popen:
 
 def test_replay_reaches_a_subscriber(run: tuple[dict, Path, list]) -> None:
     cfg, mcap, records = run
+    records = [r for r in records if m.topic_of_key(r[0]) is not None]  # derived channels stay in the file
+    assert len(records) < len(run[2])
     session = open_session(ZenohConfig(hub=cfg["zenoh"]["hub"]))  # the test owns the hub; replay joins
     got: Counter[str] = Counter()
     lock = threading.Lock()

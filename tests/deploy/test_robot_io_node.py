@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from bus_probe import BusProbe
+from bus_probe import BusProbe, control
 from loopback import free_port, unique_name
 from stack_helpers import running_part
 
@@ -79,17 +79,27 @@ class Chunks:
     seq = 0
 
     @classmethod
-    def send(cls, bus: Bus, actions) -> int:
-        cls.seq += 1
+    def send(cls, bus: Bus, actions, predicted_ee=(), seq: int | None = None) -> int:
+        """Put a chunk numbered ``seq`` (default: the next number)."""
+        if seq is None:
+            seq = cls.seq + 1
+        cls.seq = max(cls.seq, seq)
+        msg = m.ActionChunk(
+            seq=seq, actions=np.asarray(actions, float).ravel(), predicted_ee=np.asarray(predicted_ee).ravel()
+        )
+        cls.put(bus, msg.SerializeToString())
+        return seq
+
+    @staticmethod
+    def put(bus: Bus, data: bytes) -> None:
         pub = bus.session.declare_publisher(bus.key(m.CMD_CHUNK))
-        pub.put(m.ActionChunk(seq=cls.seq, actions=np.asarray(actions, float).ravel()).SerializeToString())
+        pub.put(data)
         pub.undeclare()
-        return cls.seq
 
 
-def control(bus: Bus, command: str) -> None:
-    msg = m.Control(command=m.enum(m.Control, "command", command), jog=[0.0, 0.0, 0.0])
-    bus.session.put(bus.key(m.CONTROL), msg.SerializeToString())
+def states_after(listener: Listener, t: float) -> list[m.RobotState]:
+    with listener.lock:
+        return [s for arrived, s in listener.states if arrived > t]
 
 
 def test_01_reset_query_homes_the_arm(robot):
@@ -194,3 +204,52 @@ def test_07_bad_bytes_are_reported_and_the_process_lives(robot):
     n = len(listener.states)
     listener.wait(lambda: len(listener.states) > n + 5, timeout=2)
     assert proc.poll() is None
+
+
+def test_08_a_bad_plan_is_refused_whole_and_the_arm_holds(robot):
+    """Too large a step, a predicted path of another length, NaN: each refused whole with a safety event;
+    nothing of it plays, the rest of the playing plan is dropped (the arm holds where it is), and the
+    refused chunk's number stays free for the next valid plan."""
+    bus, listener, _ = robot
+    down = np.tile([0.0, 0.0, -0.004], (40, 1))
+    big = np.tile([0.0, 0.0, 0.004], (6, 1))
+    big[2] = [0.04, 0.04, 0.0]  # 5.7 cm
+    cases = [
+        ("bad_plan", "above robot.max_step_m", lambda seq: Chunks.send(bus, big, seq=seq)),
+        (
+            "bad_plan",
+            "2 predicted positions for 6 actions",
+            lambda seq: Chunks.send(bus, big[:1].repeat(6, 0), np.zeros((2, 3)), seq),
+        ),
+        (
+            "bad_message",
+            "NaN",
+            lambda seq: Chunks.put(
+                bus, m.ActionChunk(seq=seq, actions=[0.0, np.nan, 0.0]).SerializeToString()
+            ),
+        ),
+    ]
+    for kind, why, send_bad in cases:
+        playing = Chunks.send(bus, down)
+        listener.wait(lambda p=playing: listener.latest().played_chunk == p, 3, f"plan {playing} playing")
+        before = len(listener.events(kind))
+        refused = Chunks.seq + 1
+        send_bad(refused)
+        t_event, event = listener.wait(lambda k=kind, b=before: listener.events(k)[b:], 3, why)[0]
+        assert why in event.detail and "refused whole" in event.detail, event.detail
+        stop = listener.wait(
+            lambda p=playing: [s for s in listener.status if s.chunk_seq == p and s.done],
+            3,
+            "the old plan's end",
+        )[0]
+        assert stop.preempted_by == -1 and stop.dropped > 0 and stop.executed + stop.dropped == 40
+        listener.wait(lambda t=t_event: len(states_after(listener, t + 2 * PERIOD)) >= 6, 3, "six states")
+        held = states_after(listener, t_event + 2 * PERIOD)[:6]
+        assert all(s.played_chunk == -1 for s in held)  # nothing of it played
+        ee = np.array([s.ee_pos for s in held])
+        assert np.ptp(ee, axis=0).max() < 2e-3, ee  # m: the arm stands where it stopped
+        assert all(s.chunk_seq == playing for s in held)  # the refused number was not taken
+        assert not [s for s in listener.status if s.chunk_seq == refused and s.executed]
+        Chunks.send(bus, [[0.0, 0.0, 0.0]], seq=refused)  # so a valid plan with it plays
+        listener.wait(lambda r=refused: listener.latest().chunk_seq == r, 3, "the next valid plan")
+        listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)

@@ -7,24 +7,36 @@ import sys
 import pytest
 
 
-def _check(path: str) -> subprocess.CompletedProcess:
+def _check(path: str, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "deploy.cli", "up", path, "--check"],
+        [sys.executable, "-m", "deploy.cli", "up", path, "--check", *extra],
         capture_output=True,
         text=True,
         timeout=120,
     )
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("pylibfranka") is not None, reason="pylibfranka is installed here"
-)
-def test_franka_check_names_missing_drivers():
+def test_franka_check_names_model_driver_and_missing_drivers():
     out = _check("configs/franka_realsense.yaml")
-    assert out.returncode == 1
-    assert "MISSING driver pylibfranka" in out.stdout
+    assert "robot model panda (panda.urdf" in out.stdout
+    if importlib.util.find_spec("franky") is None:
+        assert "MISSING driver franky" in out.stdout
+    else:
+        assert "driver franky-control" in out.stdout and "robot server version" in out.stdout
     assert ("MISSING driver pyrealsense2" in out.stdout) == (importlib.util.find_spec("pyrealsense2") is None)
     assert "nothing was started and nothing moved" in out.stdout
+    assert "not contacted (add --probe-arm" in out.stdout  # a plain check never reaches out to the arm
+
+
+@pytest.mark.skipif(importlib.util.find_spec("franky_sim") is None, reason="franky-sim is not installed")
+def test_franka_check_reads_the_arms_version_when_it_answers():
+    from robot_io.backends.franky_sim import FrankySimServer
+
+    with FrankySimServer("127.0.0.1"):
+        out = _check("configs/franka_sim.yaml", "--probe-arm")  # franky-sim on loopback
+    assert out.returncode == 0, out.stdout
+    assert "robot server version 10 (FR3), matches the installed franky" in out.stdout
+    assert "model check: flange FK within" in out.stdout
 
 
 def test_sim_check_passes_and_bad_config_is_named(tmp_path):

@@ -111,7 +111,9 @@ def test_every_shipped_stack_config_loads():
     assert {"sim.yaml", "franka_realsense.yaml"} <= {p.name for p in paths}
     for path in paths:
         cfg = load_stack_config(path)
-        assert cfg.vision is not None and cfg.monitor is not None, path
+        assert cfg.monitor is not None, path
+        # franka_sim.yaml: no camera sees franky-sim's world; the learner reads the scripted target
+        assert cfg.vision is not None or cfg.learner.target_topic == "sim/target_truth", path
 
 
 def test_every_algo_has_its_agent_section():

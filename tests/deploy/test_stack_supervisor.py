@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -62,3 +63,56 @@ def test_parts_stop_when_the_supervisor_is_killed(tmp_path):
             os.kill(pid, signal.SIGKILL)
         if up.poll() is None:
             up.kill()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_crashed_part_is_restarted_and_the_token_is_never_on_a_command_line(tmp_path):
+    """SIGKILL of the vision process (cameras fail most on real rigs) no longer ends the run: the
+    supervisor restarts it after its back-off and the learner goes on. The operator token reaches the
+    parts through their environment: no part's argv (world-readable through ``ps``) holds it."""
+    path, _ = write_stack_config(tmp_path, "rs", steps=100000)
+    out = tmp_path / "summary.json"
+    up = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        token = up.stdout.readline().strip().removeprefix("operator token: ")
+        assert len(token) >= 12
+        deadline = time.monotonic() + 60
+        while set(_parts_of(path)) != set(PARTS):
+            assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(_parts_of(path))}"
+            time.sleep(0.5)
+        parts = _parts_of(path)
+        for pid in parts.values():
+            argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
+            assert token not in argv
+            assert f"ADAPTIVEH_TOKEN={token}".encode() in Path(f"/proc/{pid}/environ").read_bytes()
+        os.kill(parts["vision"], signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while _parts_of(path).get("vision") in (None, parts["vision"]):
+            assert time.monotonic() < deadline, "vision was not restarted"
+            assert up.poll() is None, "adaptiveh up ended when vision died"
+            time.sleep(0.2)
+        assert _parts_of(path).get("learn") == parts["learn"]  # the learner went on, untouched
+        up.send_signal(signal.SIGTERM)
+        assert up.wait(timeout=60) in (0, 1)
+    finally:
+        for pid in _parts_of(path).values():
+            os.kill(pid, signal.SIGKILL)
+        if up.poll() is None:
+            up.kill()
+    summary = json.loads(out.read_text())
+    assert summary["restarts"] == {"vision": 1}
+
+
+def test_a_token_file_others_can_read_is_refused(tmp_path):
+    from deploy.cli import main
+
+    token = tmp_path / "token"
+    token.write_text("secret\n")
+    token.chmod(0o644)
+    with pytest.raises(SystemExit, match="readable by others"):
+        main(["monitor", "--config", "configs/sim.yaml", "--token-file", str(token), "--duration", "0.1"])

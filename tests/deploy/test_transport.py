@@ -69,3 +69,39 @@ def test_queryable_answers_typed_and_refuses_bad_requests(buses):
     assert replies and replies[0].err is not None
     assert "ResetRequest: undecodable" in replies[0].err.payload.to_bytes().decode()
     assert a.bad_messages == {"reset": 1}
+
+
+def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
+    """SIGSTOP keeps the peer's socket open, so only the lease tells: 1 s by default (Zenoh's own 10 s
+    left an arm driven by a frozen learner's last plan that long)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    name = unique_name("lease")
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import time\nfrom deploy.transport import Bus, ZenohConfig, open_session\n"
+            f"b = Bus(open_session(ZenohConfig(connect=({endpoint!r},))), {name!r})\n"
+            "b.declare_alive('learner'); print('up', flush=True); time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), name)
+    seen: dict[str, tuple[bool, float]] = {}
+    try:
+        bus.watch_alive(lambda who, alive: seen.update({who: (alive, time.monotonic())}))
+        assert child.stdout.readline().strip() == "up"
+        assert _wait(lambda: seen.get("learner", (False,))[0], 10)
+        t0 = time.monotonic()
+        os.kill(child.pid, signal.SIGSTOP)
+        assert _wait(lambda: not seen["learner"][0], 5), "the stalled peer was not noticed within 5 s"
+        assert seen["learner"][1] - t0 < 2.5
+    finally:
+        child.kill()
+        child.wait()
+        bus.close()

@@ -39,3 +39,51 @@ def test_target_box_is_validated(tmp_path):
     path.write_text(yaml.safe_dump(cfg))
     with pytest.raises(Exception, match="learner.target_box: .*must be below hi"):
         load_stack_config(path)
+
+
+def test_a_lost_target_is_waited_for_not_guessed(endpoint):
+    """The closed loop acts only on a fresh valid fix: a 'lost' report (or silence past
+    ``target_timeout_s``) blocks the next step until vision reports the target again."""
+    import threading
+    import time
+
+    from deploy import messages as m
+
+    name = unique_name("tw")
+    bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), name)
+    vision = Bus(open_session(ZenohConfig(connect=(endpoint,))), name)
+    try:
+        env = ZenohReachEnv(bus, env_settings(load_stack_config("configs/sim.yaml")))
+        pub = vision.publisher(m.TARGET)
+        time.sleep(0.5)
+
+        def report(valid: bool) -> None:
+            status = m.Target.TRACKING if valid else m.Target.LOST
+            pub.put(
+                m.Target(
+                    position=[0.5, 0.0, 0.3],
+                    velocity=[0.0] * 3,
+                    covariance=[0.0] * 9,
+                    valid=valid,
+                    frame_stamp=time.time(),
+                    status=status,
+                )
+            )
+
+        report(True)
+        assert env._wait(env._target_fresh, 3.0)
+        env._await_target()  # fresh: returns at once
+        assert env.target_waits == 0
+        report(False)
+        assert env._wait(lambda: env._target_lost, 3.0)
+        done = threading.Event()
+        waiter = threading.Thread(target=lambda: (env._await_target(), done.set()), daemon=True)
+        waiter.start()
+        assert not done.wait(1.5)  # lost: the learner waits
+        report(True)
+        assert done.wait(5.0) and env.target_waits == 1
+        time.sleep(0.6)  # no report for longer than target_timeout_s: stale, not guessed
+        assert not env._target_fresh()
+    finally:
+        vision.close()
+        bus.close()

@@ -15,6 +15,9 @@ from collections import deque
 from collections.abc import Callable, MutableSequence
 from typing import Any, TypeVar
 
+import numpy as np
+
+from deploy import messages as m
 from deploy.messages import Message, Topic
 from deploy.transport import Bus
 
@@ -53,3 +56,16 @@ class BusProbe:
             time.sleep(0.01)
         raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
+
+
+def send_chunk(bus: Bus, seq: int, actions: Any) -> None:
+    """Put an ActionChunk with an explicit ``seq`` straight on the wire (what a learner, or a stranger,
+    sends), bypassing the publisher's own numbering."""
+    msg = m.ActionChunk(seq=seq, actions=np.asarray(actions, float).ravel())
+    bus.session.put(bus.key(m.CMD_CHUNK), msg.SerializeToString())
+
+
+def control(bus: Bus, command: str) -> None:
+    """An operator request without a token (the robot obeys an e-stop regardless)."""
+    msg = m.Control(command=m.enum(m.Control, "command", command), jog=[0.0, 0.0, 0.0])
+    bus.session.put(bus.key(m.CONTROL), msg.SerializeToString())

@@ -1,0 +1,192 @@
+"""The robot side of ``learner.plans.PlanChannel`` over Zenoh: which plan a chunk was, late sending, drops.
+
+``deploy.zenoh_env.ZenohReachEnv`` is the channel; this module keeps its parts that know nothing of the
+reach task: :class:`PlanBook` (chunk number <-> plan, and what a preemption dropped),
+:class:`DelayedSender` (a learner latency that never blocks the learner: the old plan keeps playing
+meanwhile) and :func:`played` (which plan action a robot tick ran, from the tick's own report).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from deploy import messages as m
+from learner.plans import Plan
+
+log = logging.getLogger(__name__)
+MOVING_M = 1e-9  # a planned step longer than this is motion (zeros are the "stay put" of closed loop)
+
+
+def cap_steps(actions: np.ndarray, max_step: float) -> np.ndarray:
+    """Each step scaled down to at most ``max_step`` metres (the task's "norm capped at 5 cm per step").
+
+    The action box is per axis, so a planned step can be 5 cm * sqrt(3) long; the robot refuses a
+    plan with a step above ``robot.max_step_m``, so the sender caps it first (the same motion the
+    controller's own cap gives an in-process step)."""
+    actions = np.asarray(actions, float).reshape(-1, 3)
+    norms = np.linalg.norm(actions, axis=1, keepdims=True)
+    return actions * np.minimum(1.0, max_step / np.maximum(norms, 1e-12))
+
+
+@dataclass(frozen=True)
+class SentPlan:
+    """A plan as it went out: the chunk number the robot reports it by, and why it was sent."""
+
+    plan: Plan
+    actions: np.ndarray  # as sent (steps capped): what the robot plays
+    seq: int
+    reason: str | None  # the closed segment's end reason that made this plan ("retreat", ...), if given
+
+
+@dataclass(frozen=True)
+class PlanDrop:
+    """What a preemption dropped of one plan: ``dropped`` planned actions, ``moving`` of them non-zero."""
+
+    plan_id: int
+    by_plan_id: int  # the plan that preempted it
+    by_reason: str | None  # why that plan was made (the node marks retreats)
+    executed: int
+    dropped: int
+    moving: int
+    path_m: float  # planned end-effector travel abandoned (sum of the dropped steps' lengths)
+
+
+class PlanBook:
+    """Chunk number -> sent plan (the newest ``keep``), and the account of planned actions dropped.
+
+    Thread-safe: the sender records from its thread, the learner looks up ticks, Zenoh reports status.
+    """
+
+    def __init__(self, keep: int = 64) -> None:
+        self._lock = threading.Lock()
+        self._by_seq: dict[int, SentPlan] = {}
+        self._order: deque[int] = deque()
+        self.keep = keep
+        self.newest_seq = -1
+        self.dropped_planned = 0  # planned actions dropped by a newer plan, total
+        self.dropped_moving = 0  # of which non-zero motions
+        self.preemptions = 0
+        self.foreign_ticks = 0  # ticks that played a chunk not in the book (reported as holds)
+        self.drops: deque[PlanDrop] = deque(maxlen=256)
+
+    def send(self, put: Callable[[], int], plan: Plan, actions: np.ndarray, reason: str | None) -> int:
+        """``put()`` the chunk (it returns the chunk number) and record it, under the book's lock: a
+        robot tick or status naming the chunk is never looked up before its entry exists. No Zenoh
+        callback is waited on while the lock is held (a put does not wait for subscribers)."""
+        with self._lock:
+            seq = put()
+            self._by_seq[seq] = SentPlan(plan, actions, seq, reason)
+            self._order.append(seq)
+            self.newest_seq = max(self.newest_seq, seq)
+            while len(self._order) > self.keep:
+                self._by_seq.pop(self._order.popleft(), None)
+            return seq
+
+    def get(self, seq: int) -> SentPlan | None:
+        with self._lock:
+            return self._by_seq.get(seq)
+
+    def newest(self) -> SentPlan | None:
+        with self._lock:
+            return self._by_seq.get(self.newest_seq)
+
+    def on_status(self, msg: m.ChunkStatus) -> PlanDrop | None:
+        """Account for a plan preempted by another plan; None for anything else (a refusal, an e-stop's
+        clear and a plan run to its end drop no planned action in favour of a newer plan)."""
+        if msg.preempted_by < 0 or not msg.dropped:
+            return None
+        with self._lock:
+            sent, by = self._by_seq.get(msg.chunk_seq), self._by_seq.get(msg.preempted_by)
+            if sent is None:
+                return None  # not one of our plans (closed-loop chunks, another learner)
+            rest = sent.actions[msg.executed : msg.executed + msg.dropped]
+            lengths = np.linalg.norm(rest, axis=1)
+            drop = PlanDrop(
+                plan_id=sent.plan.plan_id,
+                by_plan_id=by.plan.plan_id if by is not None else -1,
+                by_reason=by.reason if by is not None else None,
+                executed=msg.executed,
+                dropped=msg.dropped,
+                moving=int(np.sum(lengths > MOVING_M)),
+                path_m=float(lengths.sum()),
+            )
+            self.dropped_planned += drop.dropped
+            self.dropped_moving += drop.moving
+            self.preemptions += 1
+            self.drops.append(drop)
+            return drop
+
+
+def played(state: m.RobotState, book: PlanBook) -> tuple[int, int, np.ndarray]:
+    """(plan_id, index, action) of what the tick that produced ``state`` ran: the robot names the chunk
+    and index it took from its queue; none (-1, -1, zero) is a hold, as is a chunk that was not one of
+    our plans (its actions are unknown here)."""
+    if state.played_chunk < 0:
+        return -1, -1, np.zeros(3)
+    sent = book.get(state.played_chunk)
+    if sent is None or not 0 <= state.played_index < len(sent.actions):
+        # E.g. a restarted learner's first ticks, while the last process's plan plays out.
+        log.debug("tick %d played chunk %d, not a known plan", state.tick, state.played_chunk)
+        book.foreign_ticks += 1
+        return -1, -1, np.zeros(3)
+    return sent.plan.plan_id, state.played_index, sent.actions[state.played_index].copy()
+
+
+class DelayedSender:
+    """Runs ``publish(item)`` ``delay_s`` after ``submit(item)``, in submission order, on its own thread.
+
+    The learner's thinking time made real: ``submit`` returns at once and the robot keeps playing the
+    old plan until the new one is published. ``cancel`` forgets what is still waiting (a reset: a plan
+    of the last episode must not play in the next).
+    """
+
+    def __init__(self, publish: Callable[[object], None], delay_s: float, stop: threading.Event) -> None:
+        self.publish = publish
+        self.delay_s = delay_s
+        self.stop = stop
+        self._cond = threading.Condition()
+        self._pending: deque[tuple[float, object]] = deque()
+        self._thread: threading.Thread | None = None
+
+    def submit(self, item: object) -> None:
+        with self._cond:
+            self._pending.append((time.monotonic() + self.delay_s, item))
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="plan-sender", daemon=True)
+                self._thread.start()
+            self._cond.notify_all()
+
+    def cancel(self) -> int:
+        with self._cond:
+            n = len(self._pending)
+            self._pending.clear()
+            return n
+
+    def pending(self) -> int:
+        with self._cond:
+            return len(self._pending)
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            with self._cond:
+                if not self._pending:
+                    self._cond.wait(0.25)  # short: ``stop`` is an Event, which does not wake this
+                    continue
+                due, item = self._pending[0]
+                left = due - time.monotonic()
+                if left > 0:
+                    self._cond.wait(min(left, 0.25))
+                    continue
+                self._pending.popleft()
+                # Published under the lock so a ``cancel`` (reset) never races a plan of the old episode.
+                try:
+                    self.publish(item)
+                except Exception:  # a failed put must not kill the sender; the learner sees no plan play
+                    log.exception("publishing a delayed plan failed")

@@ -1,0 +1,215 @@
+"""The plans experiment (issue #11): does the retreat pick the right moment when segments are committed plans?
+
+Every run executes in plan mode (``execution: plan``, ``learner.plans``): a segment is a plan of up to
+``H`` actions over the env's nominal model, played without waiting for the learner. Per setting:
+
+* the **front**: RKHS fixed-H (re-plans every H steps) at H in ``FRONT_H``; H = 1 is the closed loop;
+* the **points**: AdaptiveH with the ``plan`` retreat at each threshold in ``THRESHOLDS`` and with the
+  ``local`` retreat (its default threshold);
+* the **latency** sweep: fixed H = 1, fixed H = 10 and AdaptiveH (``plan``, 0.8) with a new plan taking
+  effect ``latency_steps`` in ``LATENCIES`` steps late, on ``LATENCY_SETTINGS``.
+
+The runs go through the paper bench's runner (one process per run, resumable ``runs/<name>.json``);
+``experiments.plans_report`` builds ``summary.json``, ``summary.md`` and the figures from whatever is
+finished. This module is what the worker processes import: it holds the plan only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from experiments.plan import ENVS, EnvSpec, RunSpec, agent_config, env_kwargs
+
+# NS Reach with the fast target (motion preset ``fast``), at the paper bench's Reach budget.
+REACH_FAST = ENVS["reach_slow"].model_copy(
+    update={"key": "reach_fast", "preset": "fast", "label": "NS Reach (fast)"}
+)
+SETTINGS: dict[str, EnvSpec] = {
+    k: ENVS.get(k, REACH_FAST)
+    for k in ("cartpole_slow", "cartpole_fast", "pendulum_slow", "reach_slow", "reach_fast")
+}
+FRONT_H = (1, 2, 5, 10, 20, 50)
+THRESHOLDS = (0.5, 0.8, 0.9)
+LATENCIES = (0, 2, 5, 10)
+LATENCY_SETTINGS = ("cartpole_fast", "reach_slow")
+LATENCY_THRESHOLD = 0.8
+LATENCY_H = (1, 10)
+DRIFT_PAIRS = (("cartpole_slow", "cartpole_fast"), ("reach_slow", "reach_fast"))
+FULL_SEEDS = 5
+QUICK_SEEDS = 2
+QUICK_STEPS = {"NSCartPoleContinuous-v0": 1000, "NSPendulum-v0": 1000, "NSReach-v0": 500}
+
+
+def fixed_method(h: int) -> str:
+    return f"rkhs-h{h}"
+
+
+def plan_method(threshold: float) -> str:
+    return f"adaptiveh-plan{threshold:g}"
+
+
+LOCAL_METHOD = "adaptiveh-local"
+
+
+def method_config(method: str) -> tuple[str, dict[str, Any]]:
+    """(algo, agent overrides) of a method name: ``rkhs-h<H>``, ``adaptiveh-plan<t>``, ``adaptiveh-local``."""
+    if method.startswith("rkhs-h"):
+        return "rkhs", {"execution": "plan", "fixed_h": int(method.removeprefix("rkhs-h"))}
+    if method.startswith("adaptiveh-plan"):
+        t = float(method.removeprefix("adaptiveh-plan"))
+        return "adaptiveh", {"execution": "plan", "retreat": "plan", "retreat_threshold": t}
+    if method == LOCAL_METHOD:
+        return "adaptiveh", {"execution": "plan", "retreat": "local", "retreat_threshold": None}
+    raise ValueError(f"unknown method {method!r}")
+
+
+def method_label(method: str) -> str:
+    if method.startswith("rkhs-h"):
+        h = int(method.removeprefix("rkhs-h"))
+        return "fixed H = 1 (closed loop)" if h == 1 else f"fixed H = {h}"
+    if method.startswith("adaptiveh-plan"):
+        return f"AdaptiveH, plan retreat {method.removeprefix('adaptiveh-plan')}"
+    return "AdaptiveH, local retreat"
+
+
+@dataclass(frozen=True)
+class PlanRunSpec(RunSpec):
+    """A run of the plans experiment: a method (``rkhs-h10``, ``adaptiveh-plan0.8``, ...) and a latency."""
+
+    method: str = ""
+    latency: int = 0
+
+    @property
+    def name(self) -> str:
+        lat = f"-lat{self.latency}" if self.latency else ""
+        return f"{self.env}__{self.method}{lat}__s{self.seed}__{self.steps}"
+
+    @property
+    def env_spec(self) -> EnvSpec:
+        return SETTINGS[self.env]
+
+
+@dataclass
+class PlansPlan:
+    runs: list[PlanRunSpec]
+    settings: list[str]
+    front_h: list[int]
+    points: list[str]  # AdaptiveH methods
+    latencies: list[int]
+    latency_settings: list[str]
+    latency_methods: list[str]
+    seeds: list[int]
+    latency_seeds: list[int]
+    steps: dict[str, int]
+    quick: bool
+
+    @property
+    def front(self) -> list[str]:
+        return [fixed_method(h) for h in self.front_h]
+
+    def finished(
+        self, runs: dict[str, dict[str, Any]], setting: str, method: str, latency: int = 0
+    ) -> list[dict[str, Any]]:
+        """The finished run files of one (setting, method, latency) group, in seed order."""
+        return [
+            runs[r.name]
+            for r in self.runs
+            if (r.env, r.method, r.latency) == (setting, method, latency) and r.name in runs
+        ]
+
+    def planned(self, setting: str, method: str, latency: int = 0) -> list[PlanRunSpec]:
+        return [r for r in self.runs if (r.env, r.method, r.latency) == (setting, method, latency)]
+
+
+def build_plans_plan(
+    quick: bool = False,
+    seeds: int | None = None,
+    latency_seeds: int | None = None,
+    steps: int | None = None,
+    settings: list[str] | None = None,
+    front_h: tuple[int, ...] = FRONT_H,
+    thresholds: tuple[float, ...] = THRESHOLDS,
+    latencies: tuple[int, ...] = LATENCIES,
+) -> PlansPlan:
+    """The runs, ordered so that a partial experiment is already useful: seed by seed (cheap settings
+    first within a seed), each seed's latency runs after the next seed's front and points."""
+    keys = list(settings or SETTINGS)
+    for key in keys:
+        if key not in SETTINGS:
+            raise ValueError(f"unknown setting {key!r}; choose from {sorted(SETTINGS)}")
+    n_seeds = seeds if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
+    n_lat = min(n_seeds, latency_seeds) if latency_seeds is not None else n_seeds
+    if n_seeds < 1 or n_lat < 0:
+        raise ValueError(f"seeds must be >= 1 (got {n_seeds}) and latency seeds >= 0 (got {n_lat})")
+    if steps is not None and steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
+    points = [plan_method(t) for t in thresholds] + [LOCAL_METHOD]
+    main = [fixed_method(h) for h in front_h] + points
+    lat_settings = [k for k in LATENCY_SETTINGS if k in keys]
+    lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD)]
+
+    def spec(key: str, method: str, seed: int, latency: int = 0) -> PlanRunSpec:
+        algo, overrides = method_config(method)
+        cfg = {**agent_config(SETTINGS[key], algo), **overrides, "latency_steps": latency}
+        cfg = {k: v for k, v in cfg.items() if v is not None}
+        kwargs = env_kwargs(SETTINGS[key], seed)
+        return PlanRunSpec(key, algo, seed, budget[key], cfg, kwargs, method, latency)
+
+    cheap_first = sorted(keys, key=lambda k: SETTINGS[k].env_id == "NSReach-v0")
+    main_runs = [spec(k, m, s) for s in range(n_seeds) for k in cheap_first for m in main]
+    have = {r.name for r in main_runs}
+    lat_runs = []
+    for s in range(n_lat):
+        for k, m, lat in ((k, m, lat) for k in lat_settings for m in lat_methods for lat in latencies):
+            r = spec(k, m, s, lat)
+            if r.name not in have:  # latency 0 of the front / points is the same run
+                lat_runs.append(r)
+                have.add(r.name)
+    # Each seed's latency runs follow the next seed's front and points: s0, s1, L-s0, s2, L-s1, s3, ...
+    runs = sorted(main_runs + lat_runs, key=lambda r: 2 * r.seed + (3 if r.latency else 0))
+    return PlansPlan(
+        runs=runs,
+        settings=keys,
+        front_h=list(front_h),
+        points=points,
+        latencies=list(latencies),
+        latency_settings=lat_settings,
+        latency_methods=lat_methods,
+        seeds=list(range(n_seeds)),
+        latency_seeds=list(range(n_lat)),
+        steps=budget,
+        quick=quick,
+    )
+
+
+def main_plans(
+    quick: bool,
+    out: Path,
+    jobs: int,
+    seeds: int | None = None,
+    latency_seeds: int | None = None,
+    steps: int | None = None,
+    settings: list[str] | None = None,
+    report_only: bool = False,
+    progress: bool = True,
+    paper_dir: Path | None = None,
+    **shape: Any,
+) -> dict[str, Any]:
+    """Run what is unfinished (unless ``report_only``), then report; returns the summary."""
+    import json
+
+    from experiments.plans_report import plans_report
+    from experiments.runner import run_plan
+
+    plan = build_plans_plan(quick, seeds, latency_seeds, steps, settings, **shape)
+    outcome: dict[str, list[str]] = {"skipped": [], "ran": [], "failed": []}
+    if not report_only:
+        outcome = run_plan(plan, out, jobs, progress, label="plans bench")  # type: ignore[arg-type]
+    summary = plans_report(plan, out, paper_dir)
+    summary["last_invocation"] = {k: len(v) for k, v in outcome.items()}
+    summary["failed_runs"] = outcome["failed"]
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False))
+    return summary

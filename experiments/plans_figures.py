@@ -1,0 +1,160 @@
+"""Figures of the plans experiment: the fixed-H front with the AdaptiveH points, latency, H slow vs fast."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from experiments.figures import _kilo_steps, _save
+from experiments.plans import PlansPlan
+
+POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "tab:green", "tab:pink"]
+BASE_STYLE = {"td3": ("tab:blue", "s"), "ddpg": ("tab:cyan", "D")}
+
+
+def _err(stat: dict[str, Any]) -> list[list[float]]:
+    return [[stat["mean"] - stat["lo"]], [stat["hi"] - stat["mean"]]]
+
+
+def _front_panel(ax: Any, s: dict[str, Any]) -> None:
+    front = sorted((f for f in s["front"] if f["n"]), key=lambda f: f["replans_per_100"]["mean"])
+    if front:
+        xs = [f["replans_per_100"]["mean"] for f in front]
+        ys = [f["final_return"]["mean"] for f in front]
+        ax.plot(xs, ys, color="tab:purple", marker="o", label="fixed-H front (RKHS)")
+        ax.fill_between(
+            xs,
+            [f["final_return"]["lo"] for f in front],
+            [f["final_return"]["hi"] for f in front],
+            color="tab:purple",
+            alpha=0.2,
+            linewidth=0,
+        )
+        for f, x, y in zip(front, xs, ys, strict=True):
+            ax.annotate(
+                f"H={f['H']}",
+                (x, y),
+                textcoords="offset points",
+                xytext=(3, 4),
+                fontsize=7,
+                color="tab:purple",
+            )
+    for color, p in zip(POINT_COLORS, s["points"].values(), strict=False):
+        if not p["n"]:
+            continue
+        ax.errorbar(
+            p["replans_per_100"]["mean"],
+            p["final_return"]["mean"],
+            yerr=_err(p["final_return"]),
+            xerr=_err(p["replans_per_100"]),
+            fmt="*",
+            markersize=11,
+            color=color,
+            capsize=2,
+            label=f"{p['label']}: {p['vs_front']['position']}",
+        )
+    for k, (algo, b) in enumerate(s["baselines"].items()):
+        color, marker = BASE_STYLE.get(algo, ("grey", "^"))
+        ax.errorbar(
+            100.0 * (1.12 + 0.12 * k),
+            b["final_return"]["mean"],
+            yerr=_err(b["final_return"]),
+            fmt=marker,
+            mfc="none",
+            color=color,
+            capsize=2,
+            label=f"{algo.upper()} closed loop (paper bench, n={b['n']})",
+        )
+    if not front and not any(p["n"] for p in s["points"].values()):
+        ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center", color="grey")
+    ax.set_xscale("log")
+    ax.set_title(f"{s['label']} ({s['steps']:,} steps)")
+    ax.set_xlabel("re-plans per 100 steps (log)")
+    ax.set_ylabel("final return (last 10 % of steps)")
+    ax.legend(fontsize=6)
+
+
+def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    settings = list(summary["settings"])
+    cols = min(3, len(settings))
+    rows = -(-len(settings) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 4.3 * rows), squeeze=False)
+    for ax, key in zip(axes.flat, settings, strict=False):
+        _front_panel(ax, summary["settings"][key])
+    for ax in list(axes.flat)[len(settings) :]:
+        ax.axis("off")
+    fig.suptitle(
+        "Plan execution: return vs re-plans per 100 steps; fixed-H front (mean, 95% band) and AdaptiveH"
+    )
+    paths.append(_save(fig, out_dir / "front.png"))
+
+    lat = summary["latency"]
+    fig, axes = plt.subplots(1, max(1, len(lat)), figsize=(5.5 * max(1, len(lat)), 4), squeeze=False)
+    for ax, v in zip(axes[0], lat.values(), strict=False):
+        for color, c in zip(("tab:purple", "tab:blue", "tab:red"), v["curves"].values(), strict=False):
+            pts = [p for p in c["points"] if p["n"]]
+            if not pts:
+                ax.plot([], [], color=color, label=f"{c['label']} (missing)")
+                continue
+            xs = [p["latency_steps"] for p in pts]
+            ax.plot(xs, [p["final_return"]["mean"] for p in pts], marker="o", color=color, label=c["label"])
+            ax.fill_between(
+                xs,
+                [p["final_return"]["lo"] for p in pts],
+                [p["final_return"]["hi"] for p in pts],
+                color=color,
+                alpha=0.2,
+                linewidth=0,
+            )
+        ax.set_title(f"{v['label']}, seeds {v['seeds']}")
+        ax.set_xlabel("learner latency (steps until a new plan takes effect)")
+        ax.set_ylabel("final return (last 10 % of steps)")
+        ax.legend(fontsize=7)
+    if not lat:
+        axes[0][0].axis("off")
+    fig.suptitle("Return against learner latency (plan execution, mean and 95% band)")
+    paths.append(_save(fig, out_dir / "latency.png"))
+
+    drift = summary["h_drift"]
+    fig, axes = plt.subplots(max(1, len(drift)), 2, figsize=(12, 4 * max(1, len(drift))), squeeze=False)
+    for row, (pair, v) in zip(axes, drift.items(), strict=False):
+        ax_t, ax_b = row
+        labels, slow_m, fast_m, slow_e, fast_e = [], [], [], [[], []], [[], []]
+        for color, m in zip(POINT_COLORS, v["methods"].values(), strict=False):
+            for side, style in (("slow", "-"), ("fast", "--")):
+                evo = m[side].get("evolution")
+                if evo and evo["steps"]:
+                    ax_t.plot(
+                        evo["steps"], evo["mean"], linestyle=style, color=color, label=f"{m['label']}, {side}"
+                    )
+            labels.append(m["label"].replace("AdaptiveH, ", ""))
+            for side, means, err in (("slow", slow_m, slow_e), ("fast", fast_m, fast_e)):
+                st = m[side].get("mean_H") or {}
+                means.append(st.get("mean") or 0.0)
+                err[0].append((st["mean"] - st["lo"]) if st.get("mean") is not None else 0.0)
+                err[1].append((st["hi"] - st["mean"]) if st.get("mean") is not None else 0.0)
+        _kilo_steps(ax_t)
+        ax_t.set_title(f"H over training: {pair} (solid slow, dashed fast)")
+        ax_t.set_xlabel("environment steps")
+        ax_t.set_ylabel("mean H of the segments (20 bins, over seeds)")
+        ax_t.legend(fontsize=6)
+        xs = list(range(len(labels)))
+        ax_b.bar([x - 0.2 for x in xs], slow_m, 0.4, yerr=slow_e, capsize=2, color="tab:blue", label="slow")
+        ax_b.bar([x + 0.2 for x in xs], fast_m, 0.4, yerr=fast_e, capsize=2, color="tab:orange", label="fast")
+        ax_b.set_xticks(xs)
+        ax_b.set_xticklabels(labels, fontsize=7)
+        ax_b.set_title(f"per-seed mean H (95% interval): {pair}")
+        ax_b.set_ylabel("mean H")
+        ax_b.legend(fontsize=7)
+    if not drift:
+        for ax in axes[0]:
+            ax.axis("off")
+    fig.suptitle("AdaptiveH window H under slow vs fast drift (plan execution)")
+    paths.append(_save(fig, out_dir / "h_drift.png"))
+    return paths

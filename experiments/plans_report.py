@@ -1,0 +1,390 @@
+"""The report of the plans experiment: ``summary.json``, ``summary.md`` and figures from the finished runs.
+
+Per setting: the fixed-H **front** (final return against re-plans per 100 steps, mean over seeds with
+95% bootstrap intervals), each AdaptiveH **point** with its interval and its distance to the front —
+the front's return interpolated at the point's re-plan rate (linear in log re-plan rate, between the
+two fixed-H neighbours; clamped at the front's ends, marked ``extrapolated``), the difference with a
+bootstrap interval that resamples the seeds of every group apart —, the **latency** curves, **H under
+slow vs fast drift**, TD3/DDPG closed-loop reference points from the paper bench, verdicts, and which
+runs are missing.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experiments.plans import (
+    DRIFT_PAIRS,
+    LATENCY_THRESHOLD,
+    SETTINGS,
+    PlansPlan,
+    env_kwargs,
+    fixed_method,
+    method_label,
+    plan_method,
+)
+from experiments.report import _count, _h_stats, load_runs
+from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, outcome
+from experiments.verdicts import _overall
+from learner.run_summary import h_stats
+
+BASELINES = ("td3", "ddpg")
+POSITION = {"better": "above the front", "worse": "below the front", "tie": "on the front (tie)"}
+
+
+def run_numbers(run: dict[str, Any]) -> dict[str, Any]:
+    """The per-run numbers of the experiment (the run file keeps every segment's H and global step)."""
+    seg = run["segments"]
+    steps = max(1, int(run["global_step"]))
+    hs = h_stats(seg["H"]) if seg["H"] else {"mean": None, "median": None}
+    channel = run.get("plan_channel") or {}
+    dropped = channel.get("dropped_planned")
+    retreats = sum(r == "retreat" for r in seg["reason"])
+    return {
+        "final_return": run["metrics"]["final_return"],
+        "return_mean": run["metrics"]["return_mean"],
+        "replans_per_100": 100.0 * len(seg["H"]) / steps,
+        "H_mean": hs["mean"],
+        "H_median": hs["median"],
+        "segments": len(seg["H"]),
+        "retreats": int(retreats),
+        "retreats_per_100": 100.0 * retreats / steps,
+        "dropped_planned": dropped,
+        "dropped_planned_per_100": None if dropped is None else 100.0 * dropped / steps,
+        "latency_steps": channel.get("latency_steps"),
+        "wall_s": run["wall_s"],
+    }
+
+
+STAT_KEYS = (
+    "final_return",
+    "return_mean",
+    "replans_per_100",
+    "H_mean",
+    "H_median",
+    "retreats_per_100",
+    "dropped_planned_per_100",
+    "wall_s",
+)
+
+
+def group_stats(group: list[dict[str, Any]]) -> dict[str, Any]:
+    nums = [run_numbers(r) for r in group]
+    out: dict[str, Any] = {"n": len(group), "seeds": sorted(r["seed"] for r in group)}
+    for key in STAT_KEYS:
+        out[key] = bootstrap_mean([x[key] for x in nums])
+    out["per_seed"] = {key: [x[key] for x in nums] for key in ("final_return", "replans_per_100", "H_mean")}
+    return out
+
+
+def _boot_means(x: np.ndarray, rng: np.random.Generator, n_boot: int) -> np.ndarray:
+    return x[rng.integers(0, len(x), size=(n_boot, len(x)))].mean(axis=1)
+
+
+def front_gap(
+    front: list[tuple[list[float], list[float]]],
+    point: tuple[list[float], list[float]],
+    n_boot: int = N_BOOT,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Point return minus the front's return interpolated at the point's re-plan rate.
+
+    ``front``: per fixed H, (per-seed re-plan rates, per-seed returns); ``point`` the same for AdaptiveH.
+    Interpolation is linear in log re-plan rate and clamped at the front's ends. The interval resamples
+    the seeds of each group apart (each bootstrap replicate re-draws the front and the point).
+    """
+    groups = [(np.asarray(r, float), np.asarray(v, float)) for r, v in front if len(r)]
+    pr, pv = np.asarray(point[0], float), np.asarray(point[1], float)
+    if len(groups) < 2 or len(pr) == 0:
+        return {
+            "diff": None,
+            "lo": None,
+            "hi": None,
+            "n_a": len(pr),
+            "n_b": min((len(g[0]) for g in groups), default=0),
+            "front_at_rate": None,
+            "extrapolated": None,
+        }
+
+    def interp(rates: np.ndarray, rets: np.ndarray, at: float) -> float:
+        order = np.argsort(rates)
+        return float(np.interp(np.log(at), np.log(rates[order]), rets[order]))
+
+    mean_rates = np.array([g[0].mean() for g in groups])
+    mean_rets = np.array([g[1].mean() for g in groups])
+    at = float(pr.mean())
+    front_at = interp(mean_rates, mean_rets, at)
+    rng = np.random.default_rng(seed)
+    boot_front = []
+    for rates, rets in groups:  # the same seed draw for a group's rate and return
+        idx = rng.integers(0, len(rates), size=(n_boot, len(rates)))
+        boot_front.append((rates[idx].mean(axis=1), rets[idx].mean(axis=1)))
+    idx = rng.integers(0, len(pr), size=(n_boot, len(pr)))
+    b_rate, b_ret = pr[idx].mean(axis=1), pv[idx].mean(axis=1)
+    diffs = np.array(
+        [
+            b_ret[b]
+            - interp(
+                np.array([f[0][b] for f in boot_front]), np.array([f[1][b] for f in boot_front]), b_rate[b]
+            )
+            for b in range(n_boot)
+        ]
+    )
+    lo, hi = np.percentile(diffs, [2.5, 97.5])
+    return {
+        "diff": float(pv.mean() - front_at),
+        "lo": float(lo),
+        "hi": float(hi),
+        "n_a": int(len(pr)),
+        "n_b": int(min(len(g[0]) for g in groups)),
+        "point_rate": at,
+        "front_at_rate": front_at,
+        "extrapolated": bool(at < mean_rates.min() or at > mean_rates.max()),
+    }
+
+
+def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: dict[str, Any]) -> dict:
+    front = []
+    for h in plan.front_h:
+        g = plan.finished(runs, key, fixed_method(h))
+        front.append({"H": h, "method": fixed_method(h), **group_stats(g)})
+    pairs = {
+        metric: [(f["per_seed"]["replans_per_100"], f["per_seed"][metric]) for f in front]
+        for metric in ("final_return",)
+    }
+    best = max((f for f in front if f["n"]), key=lambda f: f["final_return"]["mean"], default=None)
+    points = {}
+    for i, method in enumerate(plan.points):
+        group = plan.finished(runs, key, method)
+        st = group_stats(group)
+        gap = front_gap(
+            pairs["final_return"], (st["per_seed"]["replans_per_100"], st["per_seed"]["final_return"]), seed=i
+        )
+        gap["outcome"] = outcome(gap)
+        gap["position"] = POSITION.get(gap["outcome"], gap["outcome"])
+        rate = st["replans_per_100"]["mean"]
+        dominated_by = [
+            f["H"]
+            for f in front
+            if f["n"]
+            and rate is not None
+            and f["replans_per_100"]["mean"] <= rate
+            and f["final_return"]["mean"] > st["final_return"]["mean"]
+        ]  # fixed H with no more re-plans and a higher mean return (point estimates)
+        vs_best = None
+        if best is not None:
+            d = bootstrap_diff(st["per_seed"]["final_return"], best["per_seed"]["final_return"])
+            vs_best = {"H": best["H"], **d, "outcome": outcome(d)}
+        vs_base = {}
+        for algo, b in base.items():
+            d = bootstrap_diff(st["per_seed"]["final_return"], b["per_seed"])
+            vs_base[algo] = {**d, "outcome": outcome(d)}
+        hs = _h_stats(group) if group else {"n": 0}
+        points[method] = {
+            "label": method_label(method),
+            **st,
+            "vs_front": {"metric": "final_return", "interpolation": "linear in log re-plans/100", **gap},
+            "dominated_by_fixed_H": dominated_by,
+            "vs_best_fixed_H": vs_best,
+            "vs_closed_loop_baselines": vs_base,
+            "H_over_time": hs.get("evolution"),
+            "per_seed_median_H": hs.get("per_seed_median_H", []),
+        }
+    return {
+        "label": SETTINGS[key].label,
+        "steps": plan.steps[key],
+        "front": front,
+        "points": points,
+        "baselines": base,
+    }
+
+
+def paper_baselines(plan: PlansPlan, key: str, paper_dir: Path | None) -> dict[str, Any]:
+    """TD3/DDPG closed-loop final returns from the paper bench's runs of the same env, seeds and steps."""
+    out: dict[str, Any] = {}
+    if paper_dir is None:
+        return out
+    for algo in BASELINES:
+        vals, rets, seeds = [], [], []
+        for seed in plan.seeds:
+            path = paper_dir / "runs" / f"{key}__{algo}__s{seed}__{plan.steps[key]}.json"
+            if not path.is_file():
+                continue
+            run = json.loads(path.read_text())
+            if run.get("env_kwargs") != env_kwargs(SETTINGS[key], seed):
+                continue  # another world: not comparable
+            vals.append(run["metrics"]["final_return"])
+            rets.append(run["metrics"]["return_mean"])
+            seeds.append(seed)
+        if vals:
+            out[algo] = {
+                "n": len(vals),
+                "seeds": seeds,
+                "final_return": bootstrap_mean(vals),
+                "return_mean": bootstrap_mean(rets),
+                "per_seed": vals,
+                "execution": "closed loop (H = 1), results/paper",
+                "replans_per_100": 100.0,
+            }
+    return out
+
+
+def _latency(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    out = {}
+    ada, h1, h10 = plan_method(LATENCY_THRESHOLD), fixed_method(1), fixed_method(10)
+    for key in plan.latency_settings:
+        curves = {}
+        for method in plan.latency_methods:
+            pts = []
+            for lat in plan.latencies:
+                # the latency seeds only, also at latency 0 (whose runs the front has for every seed)
+                g = [r for r in plan.finished(runs, key, method, lat) if r["seed"] in plan.latency_seeds]
+                pts.append({"latency_steps": lat, **group_stats(g)})
+            first, last = pts[0]["per_seed"]["final_return"], pts[-1]["per_seed"]["final_return"]
+            d = bootstrap_diff(last, first)
+            curves[method] = {
+                "label": method_label(method),
+                "points": pts,
+                "loss_at_max_latency": {**d, "outcome": outcome(d)},
+            }
+        comps = {}
+        for i, lat in enumerate(plan.latencies):
+            for rival in (h1, h10):
+                if ada in curves and rival in curves:
+                    a = curves[ada]["points"][i]["per_seed"]["final_return"]
+                    b = curves[rival]["points"][i]["per_seed"]["final_return"]
+                    d = bootstrap_diff(a, b)
+                    comps[f"L{lat}:{rival}"] = {**d, "outcome": outcome(d)}
+        out[key] = {
+            "label": SETTINGS[key].label,
+            "seeds": plan.latency_seeds,
+            "curves": curves,
+            "adaptiveh_minus_fixed": comps,
+        }
+    return out
+
+
+def _h_drift(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    out = {}
+    for slow, fast in DRIFT_PAIRS:
+        if slow not in plan.settings or fast not in plan.settings:
+            continue
+        by_method = {}
+        for method in plan.points:
+            hs = {k: _h_stats(plan.finished(runs, k, method)) for k in (slow, fast)}
+            rates = {
+                k: [run_numbers(r)["replans_per_100"] for r in plan.finished(runs, k, method)]
+                for k in (slow, fast)
+            }
+            comps = {}
+            if hs[slow].get("n") and hs[fast].get("n"):
+                for stat in ("mean", "median"):
+                    d = bootstrap_diff(hs[slow][f"per_seed_{stat}_H"], hs[fast][f"per_seed_{stat}_H"])
+                    comps[f"{stat}_H"] = {**d, "outcome": outcome(d)}
+            d = bootstrap_diff(rates[fast], rates[slow])
+            comps["replans_per_100 (fast minus slow)"] = {**d, "outcome": outcome(d)}
+            by_method[method] = {
+                "label": method_label(method),
+                "slow": {k: hs[slow].get(k) for k in ("n", "mean_H", "median_H", "evolution", "quantiles")},
+                "fast": {k: hs[fast].get(k) for k in ("n", "mean_H", "median_H", "evolution", "quantiles")},
+                "slow_minus_fast": comps,
+            }
+        out[f"{slow}-{fast}"] = {"slow": slow, "fast": fast, "methods": by_method}
+    return out
+
+
+def plans_verdicts(
+    plan: PlansPlan, settings: dict[str, Any], latency: dict[str, Any], drift: dict[str, Any]
+) -> dict[str, Any]:
+    """Each claim per comparison: "better" only when the whole 95% interval favours AdaptiveH."""
+    out: dict[str, Any] = {}
+    comps = {f"{k}:{m}": p["vs_front"] for k, s in settings.items() for m, p in s["points"].items()}
+    out["above_fixed_h_front"] = {
+        "metric": "final return, AdaptiveH minus the fixed-H front at its re-plan rate",
+        "comparisons": comps,
+        "verdict": _overall(list(comps.values())),
+    }
+    for method in plan.points:
+        c = {k: s["points"][method]["vs_front"] for k, s in settings.items()}
+        out[f"above_front:{method}"] = {
+            "metric": "as above, one AdaptiveH point",
+            "comparisons": c,
+            "verdict": _overall(list(c.values())),
+        }
+    comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v["adaptiveh_minus_fixed"].items()}
+    out["latency_adaptiveh_vs_fixed"] = {
+        "metric": f"final return, AdaptiveH (plan {LATENCY_THRESHOLD}) minus fixed H at each latency",
+        "comparisons": comps,
+        "verdict": _overall(list(comps.values())),
+    }
+    comps = {
+        f"{pair}:{m}:{s}": d
+        for pair, v in drift.items()
+        for m, x in v["methods"].items()
+        for s, d in x["slow_minus_fast"].items()
+        if s in ("mean_H", "median_H")
+    }
+    out["h_narrows_when_faster"] = {
+        "metric": "per-seed mean and median H of AdaptiveH in plan mode, slow minus fast",
+        "comparisons": comps,
+        "verdict": _overall(list(comps.values())),
+    }
+    return out
+
+
+def plans_aggregate(plan: PlansPlan, runs: dict[str, dict[str, Any]], paper_dir: Path | None) -> dict:
+    settings = {k: _setting(plan, runs, k, paper_baselines(plan, k, paper_dir)) for k in plan.settings}
+    latency = _latency(plan, runs)
+    drift = _h_drift(plan, runs)
+    stale = [
+        r.name
+        for r in plan.runs
+        if r.name in runs
+        and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
+    ]
+    return {
+        "plan": {
+            "quick": plan.quick,
+            "settings": {k: {**SETTINGS[k].model_dump(), "steps_used": plan.steps[k]} for k in plan.settings},
+            "front_H": plan.front_h,
+            "points": plan.points,
+            "latencies": plan.latencies,
+            "latency_settings": plan.latency_settings,
+            "latency_methods": plan.latency_methods,
+            "seeds": plan.seeds,
+            "latency_seeds": plan.latency_seeds,
+            "runs_total": len(plan.runs),
+            "runs_finished": sum(r.name in runs for r in plan.runs),
+            "bootstrap_resamples": N_BOOT,
+            "execution": "plan (every run); latency_steps 0 unless in the latency sweep",
+            "baselines": "TD3/DDPG closed loop (H = 1) from the paper bench's runs where env, seed and "
+            "steps match; plan-mode baselines at H > 1 were not run",
+        },
+        "settings": settings,
+        "latency": latency,
+        "h_drift": drift,
+        "verdicts": plans_verdicts(plan, settings, latency, drift),
+        "missing_runs": [r.name for r in plan.runs if r.name not in runs],
+        "stale_runs": stale,
+        "code_commits": _count([str((r.get("code") or {}).get("commit")) for r in runs.values()]),
+        "dirty_runs": sum((r.get("code") or {}).get("dirty") is not False for r in runs.values()),
+        "per_run": {name: run_numbers(r) for name, r in sorted(runs.items())},
+    }
+
+
+def plans_report(plan: PlansPlan, out_dir: Path, paper_dir: Path | None = None) -> dict[str, Any]:
+    """Build ``summary.json``, ``summary.md`` and the figures from the finished runs (partial is fine)."""
+    from experiments.plans_figures import make_plans_figures
+    from experiments.plans_tables import write_plans_markdown
+
+    runs = load_runs(plan, out_dir)  # type: ignore[arg-type]
+    summary = plans_aggregate(plan, runs, paper_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary["figures"] = [p.name for p in make_plans_figures(plan, summary, out_dir)]
+    summary["tables"] = write_plans_markdown(summary, out_dir).name
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False))
+    return summary

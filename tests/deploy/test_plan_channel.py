@@ -1,0 +1,71 @@
+"""The plan channel's parts without a robot: late sending in order (and forgotten on reset), and the
+account of what a preemption dropped (planned motion only, never a refusal or another learner's chunk)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from deploy import messages as m
+from deploy.plan_channel import DelayedSender, PlanBook, cap_steps, played
+from learner.plans import Plan
+
+
+def plan(plan_id: int, actions) -> Plan:
+    a = np.asarray(actions, float)
+    return Plan(plan_id, a, a, np.zeros((len(a) + 1, 15)))
+
+
+def send(book: PlanBook, seq: int, p: Plan, reason: str | None = None) -> int:
+    return book.send(lambda: seq, p, p.actions, reason)
+
+
+def test_delayed_sender_keeps_order_and_forgets_on_cancel():
+    stop, out = threading.Event(), []
+    sender = DelayedSender(lambda item: out.append((item, time.monotonic())), 0.15, stop)
+    try:
+        t0 = time.monotonic()
+        for k in range(3):
+            sender.submit(k)
+        assert time.monotonic() - t0 < 0.05 and out == []  # submit never waits
+        deadline = time.monotonic() + 3
+        while len(out) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert [k for k, _ in out] == [0, 1, 2] and out[0][1] - t0 >= 0.15
+        sender.submit("last episode")
+        assert sender.cancel() == 1
+        time.sleep(0.3)
+        assert len(out) == 3  # a plan of the last episode never goes out
+    finally:
+        stop.set()
+
+
+def test_plan_book_counts_planned_motion_dropped_by_a_newer_plan():
+    book = PlanBook()
+    first = send(book, 10, plan(0, [[0.0, 0.01, 0.0]] * 4 + [[0.0, 0.0, 0.0]]))
+    second = send(book, 11, plan(1, [[0.01, 0.0, 0.0]]), "retreat")
+    assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=0)) is None  # progress
+    assert book.on_status(m.ChunkStatus(chunk_seq=99, executed=1, dropped=3, preempted_by=second)) is None
+    assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=-1)) is None
+    drop = book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second))
+    assert (drop.plan_id, drop.by_plan_id, drop.by_reason) == (0, 1, "retreat")
+    assert (drop.dropped, drop.moving) == (4, 3) and abs(drop.path_m - 0.03) < 1e-12
+    assert (book.dropped_planned, book.dropped_moving, book.preemptions) == (4, 3, 1)
+
+
+def test_played_names_the_plan_action_and_holds_otherwise():
+    book = PlanBook()
+    seq = send(book, 5, plan(7, [[0.0, 0.02, 0.0], [0.0, 0.0, 0.05]]))
+    pid, index, action = played(m.RobotState(tick=3, played_chunk=seq, played_index=1), book)
+    assert (pid, index) == (7, 1) and action.tolist() == [0.0, 0.0, 0.05]
+    assert played(m.RobotState(tick=4, played_chunk=-1, played_index=-1), book)[:2] == (-1, -1)
+    assert played(m.RobotState(tick=5, played_chunk=6, played_index=0), book)[:2] == (-1, -1)
+    assert book.foreign_ticks == 1
+
+
+def test_cap_steps_caps_the_norm_and_keeps_the_direction():
+    capped = cap_steps(np.array([[0.05, 0.05, 0.05], [0.01, 0.0, 0.0]]), 0.05)
+    np.testing.assert_allclose(np.linalg.norm(capped, axis=1), [0.05, 0.01])
+    np.testing.assert_allclose(capped[0], [0.05 / np.sqrt(3)] * 3)

@@ -1,0 +1,194 @@
+"""Plan execution through the stack: robot-io (PyBullet, its own process) plays plans that the Zenoh env
+sends as the learner's ``PlanChannel``; the test is the learner.
+
+What the issue asks of the robot: a new plan preempts the rest of the old one, the robot reports the
+dropped planned actions (non-zero motion, not the zeros of closed loop), and the arm's next commanded
+displacement comes from the new plan. The env reports every tick once and in order.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+from bus_probe import BusProbe
+from loopback import free_endpoint, unique_name
+from stack_helpers import running_part
+
+from deploy import messages as m
+from deploy.config import StackConfig
+from deploy.learner_node import LearnerNode, env_settings
+from deploy.transport import Bus, open_session
+from deploy.zenoh_env import ZenohReachEnv
+from learner.plans import Executed, Plan
+
+RATE = 20.0
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory):
+    """robot-io owning a loopback hub (so the test's sessions and a learner node reach each other through
+    it); yields (stack config for the learner's side, probe on the bus)."""
+    hub = free_endpoint()
+    cfg = {
+        "name": unique_name("plan"),
+        "zenoh": {"hub": hub},
+        "robot": {"backend": "pybullet", "control_rate_hz": RATE, "target_motion": "slow"},
+    }
+    stack = StackConfig.model_validate({**cfg, "learner": {"target_topic": "sim/target_truth"}})
+    joined: list[BusProbe] = []
+
+    def up() -> None:
+        port = int(hub.rsplit(":", 1)[1])
+        deadline = time.monotonic() + 60
+        while True:  # join only once robot-io holds the hub, or this session would take it
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "robot-io never listened on the hub"
+                time.sleep(0.2)
+        probe = BusProbe(Bus(open_session(stack.zenoh), cfg["name"]))
+        probe.states = probe.collect(m.STATE, arrival=False, maxlen=50)
+        probe.status = probe.collect(m.CHUNK_STATUS, arrival=False)
+        probe.bus.declare_alive("learner")  # robot-io watches the learner's token
+        joined.append(probe)
+        probe.wait(lambda: len(probe.states) > 3, 60, "robot states")
+
+    with running_part("robot-io", cfg, tmp_path_factory.mktemp("plan"), up):
+        yield stack, joined[0]
+        joined[0].bus.close()
+
+
+def open_env(stack: StackConfig, **learner) -> ZenohReachEnv:
+    cfg = stack.model_copy(
+        update={"learner": stack.learner.model_copy(update={"execution": "plan", **learner})}
+    )
+    return ZenohReachEnv(Bus(open_session(stack.zenoh), stack.name), env_settings(cfg))
+
+
+def straight(plan_id: int, obs: np.ndarray, step: list[float], n: int, env: ZenohReachEnv) -> Plan:
+    """``n`` equal steps, with the path the env's model predicts for them."""
+    actions = np.tile(step, (n, 1))
+    predicted = [np.asarray(obs, float)]
+    for a in actions:
+        predicted.append(env.predict_next(predicted[-1], a))
+    return Plan(plan_id, actions, actions.copy(), np.asarray(predicted))
+
+
+def advance_until(env: ZenohReachEnv, pred, limit: int = 60) -> list[Executed]:
+    steps = []
+    for _ in range(limit):
+        steps.append(env.advance())
+        if pred(steps[-1]):
+            return steps
+    raise AssertionError(f"not within {limit} ticks: {[(s.plan_id, s.index) for s in steps]}")
+
+
+def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot):
+    stack, probe = robot
+    env = open_env(stack)
+    try:
+        obs, _ = env.reset(seed=1)
+        sideways = straight(0, obs, [0.0, 0.012, 0.0], 30, env)
+        env.send(sideways)
+        steps = advance_until(env, lambda s: s.plan_id == 0 and s.index == 5)
+        down = straight(1, steps[-1].obs, [0.0, 0.0, -0.012], 10, env)
+        env.send(down)
+        steps += advance_until(env, lambda s: s.plan_id == 1)
+        first = steps[-1]
+        # The robot played the new plan's first action on the tick after the old plan's last one.
+        assert first.index == 0 and steps[-2].plan_id == 0
+        np.testing.assert_allclose(first.action, down.actions[0])
+        moved = first.obs[0:3] - steps[-2].obs[0:3]
+        assert moved[2] < -0.006 and abs(moved[1]) < 0.004, moved  # m: down, no longer sideways
+        # Every tick once, in order; the holds before the first plan arrived are plan -1.
+        ticks = [s.info["tick"] for s in steps]
+        assert ticks == list(range(ticks[0], ticks[0] + len(ticks)))
+        assert all(s.plan_id == -1 and not s.action.any() for s in steps if s.plan_id < 0)
+        # The robot's account of the preempted plan: non-zero planned actions dropped, for the new plan.
+        seqs = {
+            sent.plan.plan_id: sent.seq
+            for sent in (env.book.get(env.chunk_seq - 1), env.book.get(env.chunk_seq))
+        }
+        status = probe.wait(
+            lambda: [s for s in probe.status if s.chunk_seq == seqs[0] and s.preempted_by == seqs[1]],
+            3,
+            "status",
+        )[0]
+        executed = sum(s.plan_id == 0 for s in steps)
+        assert status.dropped == 30 - status.executed and status.dropped >= 30 - executed - 2
+        drop = probe.wait(lambda: list(env.book.drops), 3, "the env's account")[0]
+        assert (drop.plan_id, drop.by_plan_id, drop.dropped) == (0, 1, status.dropped)
+        assert drop.moving == drop.dropped and drop.path_m == pytest.approx(0.012 * drop.dropped)
+        assert env.dropped_planned == status.dropped
+    finally:
+        env.bus.close()
+
+
+def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot):
+    stack, _ = robot
+    env = open_env(stack, latency_ms=250.0)
+    try:
+        obs, _ = env.reset(seed=2)
+        env.send(straight(0, obs, [0.0, -0.01, 0.0], 40, env))
+        advance_until(env, lambda s: s.plan_id == 0 and s.index == 3)
+        t0 = time.monotonic()
+        env.send(straight(1, obs, [0.0, 0.0, 0.01], 5, env))
+        assert time.monotonic() - t0 < 0.05  # s: the learner does not wait out the latency
+        np.testing.assert_allclose(env.queued(2), [[0.0, -0.01, 0.0]] * 2)  # the new plan has not landed
+        after = advance_until(env, lambda s: s.plan_id == 1)
+        old = [s for s in after if s.plan_id == 0]
+        assert 3 <= len(old) <= 8 and after[-1].index == 0  # 250 ms = 5 ticks of the old plan, then the new
+    finally:
+        env.bus.close()
+
+
+def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot, tmp_path):
+    """The real learner (AdaptiveH, ``learner.execution: plan``): every retreat's plan preempts non-zero
+    planned motion on the robot, and the robot's very next tick plays the new plan's first action.
+    Last in the module: the learner's liveliness token going away holds the robot."""
+    stack, probe = robot
+    chunks = probe.collect(m.CMD_CHUNK, arrival=False)
+    retreats = probe.collect(m.EVENTS_RETREAT, arrival=False)
+    ticks = probe.collect(m.STATE, arrival=False)
+    learner = stack.learner.model_copy(
+        update={"execution": "plan", "steps": 300, "max_episode_steps": 50, "checkpoint_dir": str(tmp_path)}
+    )
+    node = LearnerNode(stack.model_copy(update={"learner": learner}))
+    try:
+        res = node.run()
+    finally:
+        node.stop()
+    assert res["execution"] == "plan" and res["global_step"] == 300
+    assert res["retreat_preemptions"] >= 1, res["segments"]
+    assert res["retreat_dropped_moving"] == res["retreat_dropped"] > 0  # planned motion, not zeros
+    with probe.lock:
+        by_tick = {s.tick: s for s in ticks}
+        plan_of_segment = {c.segment: c for c in chunks}
+        seqs = {c.seq: c for c in chunks}
+        # A retreat's plan opens the next segment (none after the run's last step).
+        opened = [plan_of_segment.get(e.segment + 1) for e in retreats if m.label(e, "reason") == "retreat"]
+        opened = [c for c in opened if c is not None]
+        preempted = {s.preempted_by: s for s in probe.status if s.preempted_by in seqs and s.dropped}
+    assert opened
+    checked = 0
+    for new in opened:
+        assert len(new.predicted_ee) == len(new.actions)  # the plan's path travels with it
+        played = [t for t, s in by_tick.items() if s.played_chunk == new.seq]
+        if not played:
+            continue  # cut before its first tick: by the run's end or by an episode's reset
+        first = min(played)
+        assert by_tick[first].played_index == 0
+        dropped = preempted.get(new.seq)
+        if dropped is None:
+            continue  # the old plan had run out before this one landed: nothing to preempt
+        old = seqs[dropped.chunk_seq]
+        rest = np.reshape(old.actions, (-1, 3))[dropped.executed :]
+        assert len(rest) == dropped.dropped and np.linalg.norm(rest, axis=1).min() > 0
+        before = by_tick[first - 1]  # the tick before played the old plan: no hold in between
+        assert (before.played_chunk, before.played_index) == (old.seq, dropped.executed - 1)
+        checked += 1
+    assert checked >= 1  # at least one retreat cut a plan short on the robot

@@ -1,0 +1,126 @@
+"""FrankyBackend on franky-sim (the robot's own clock), and the controller's fault policy.
+
+Timings are read from the robot state's own clock (``RobotState.time``): franky-sim runs slower than
+real time on a loaded machine, and the arm's stopping time is a property of the commanded motion.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from robot_io.backends.protocol import Fault, JointState
+from robot_io.config import FrankaConfig, RobotConfig
+from robot_io.controller import RobotController
+
+HOST = f"127.0.{np.random.randint(1, 250)}.{np.random.randint(2, 250)}"
+PERIOD = 0.05
+
+
+@pytest.fixture(scope="module")
+def backend():
+    pytest.importorskip("franky")
+    pytest.importorskip("franky_sim")
+    from robot_io.backends.franky_backend import FrankyBackend
+    from robot_io.backends.franky_sim import FrankySimServer
+
+    with FrankySimServer(HOST):
+        b = FrankyBackend(RobotConfig(backend="franka", model="fr3", franka=FrankaConfig(ip=HOST)))
+        yield b
+        b.close()
+
+
+def test_connect_checks_the_model(backend):
+    assert backend.report.flange_error_m < 1e-3 and backend.report.limits_checked
+    assert backend.report.server_version == 10
+
+
+def test_streamed_targets_move_and_hold_stills_the_command_within_two_periods(backend):
+    q = backend.read_state().q
+    for _ in range(15):  # joint 1 at 0.2 rad/s of wall time (faster in the robot's time when it lags)
+        q = q + np.array([0.01, 0, 0, 0, 0, 0, 0])
+        backend.send_joint_command(q)
+        time.sleep(PERIOD)
+    state = backend.robot.state
+    assert abs(state.dq_d[0]) > 0.1, "the streamed motion should be under way"
+    speed = abs(state.dq_d[0])
+    t0 = state.time.to_sec()
+    backend.hold()
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline:
+        state = backend.robot.state
+        if np.max(np.abs(state.dq_d)) < 0.01:
+            break
+        time.sleep(0.002)
+    still_s = state.time.to_sec() - t0
+    assert still_s <= 2 * PERIOD, (
+        f"the command came to rest {1000 * still_s:.0f} ms (robot time) after hold at {speed:.2f} rad/s"
+    )
+    assert backend.fault() is None
+
+
+class ScriptedFaults:
+    """A backend whose driver faults on cue: the controller's policy is what is under test."""
+
+    name = "scripted"
+
+    def __init__(self) -> None:
+        self.current: Fault | None = None
+        self.recoveries = 0
+        self.recover_ok = True
+
+    def read_state(self) -> JointState:
+        return JointState(np.array(RobotConfig().home_q), np.zeros(7), 0.0)
+
+    def send_joint_command(self, q: np.ndarray) -> None: ...
+    def hold(self) -> None: ...
+    def reset(self, q_home: np.ndarray, seed: int | None) -> None: ...
+    def step(self) -> None: ...
+    def close(self) -> None: ...
+
+    def fault(self) -> Fault | None:
+        return self.current
+
+    def recover(self) -> bool:
+        self.recoveries += 1
+        if self.recover_ok:
+            self.current = None
+        return self.recover_ok
+
+
+def test_listed_reflexes_recover_automatically_a_bounded_number_of_times():
+    cfg = RobotConfig(
+        franka=FrankaConfig(auto_recover=("communication_constraints_violation",), auto_recover_limit=2)
+    )
+    backend = ScriptedFaults()
+    c = RobotController(cfg, backend=backend)
+    for expected in (1, 2):
+        backend.current = Fault(("communication_constraints_violation",), "reflex")
+        result = c.tick(0.0)
+        assert backend.recoveries == expected and c.safety.mode == "running"
+        assert [e.kind for e in result.events] == ["driver_error", "release"]
+    backend.current = Fault(("communication_constraints_violation",), "reflex")
+    c.tick(0.0)
+    assert backend.recoveries == 2 and c.safety.mode == "fault"  # the budget is spent: the operator decides
+    c.operator("release")
+    c.tick(0.0)
+    assert backend.recoveries == 3 and c.safety.mode == "running" and c.recovery.auto_used == 0
+
+
+def test_other_faults_hold_until_a_release_whose_recovery_succeeds():
+    backend = ScriptedFaults()
+    c = RobotController(RobotConfig(), backend=backend)
+    backend.current = Fault(("joint_velocity_violation",), "reflex")
+    c.tick(0.0)
+    assert backend.recoveries == 0 and c.safety.mode == "fault" and c.state().mode == "fault"
+    backend.recover_ok = False
+    c.operator("release")
+    events = c.tick(0.0).events
+    assert c.safety.mode == "fault" and any("recovery failed" in e.detail for e in events)
+    backend.recover_ok = True
+    c.operator("release")
+    c.tick(0.0)
+    assert c.safety.mode == "running"
+    assert c.push_chunk(1, np.zeros((2, 3)), 0.0) == "accepted"
