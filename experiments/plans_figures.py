@@ -112,7 +112,7 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
                 alpha=0.2,
                 linewidth=0,
             )
-        ax.set_title(f"{v['label']}, seeds {v['seeds']}")
+        ax.set_title(f"{v['label']}, seeds finished {v['seeds_finished']}")
         ax.set_xlabel("learner latency (steps until a new plan takes effect)")
         ax.set_ylabel("final return (last 10 % of steps)")
         ax.legend(fontsize=7)

@@ -237,12 +237,15 @@ def _latency(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]
     out = {}
     ada, h1, h10 = plan_method(LATENCY_THRESHOLD), fixed_method(1), fixed_method(10)
     for key in plan.latency_settings:
+        # One set of seeds along a curve: those with finished latency runs (latency 0 is the front's
+        # run, finished for more seeds); before any latency run, the planned latency seeds.
+        done = {r.seed for r in plan.runs if r.env == key and r.latency and r.name in runs}
+        seeds = done or set(plan.latency_seeds)
         curves = {}
         for method in plan.latency_methods:
             pts = []
             for lat in plan.latencies:
-                # the latency seeds only, also at latency 0 (whose runs the front has for every seed)
-                g = [r for r in plan.finished(runs, key, method, lat) if r["seed"] in plan.latency_seeds]
+                g = [r for r in plan.finished(runs, key, method, lat) if r["seed"] in seeds]
                 pts.append({"latency_steps": lat, **group_stats(g)})
             first, last = pts[0]["per_seed"]["final_return"], pts[-1]["per_seed"]["final_return"]
             d = bootstrap_diff(last, first)
@@ -262,6 +265,7 @@ def _latency(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]
         out[key] = {
             "label": SETTINGS[key].label,
             "seeds": plan.latency_seeds,
+            "seeds_finished": sorted(done),  # with latency runs; every point of a curve uses these
             "curves": curves,
             "adaptiveh_minus_fixed": comps,
         }

@@ -112,7 +112,7 @@ def write_plans_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
         dg = _digits(key)
         lats = [p["latency_steps"] for p in next(iter(v["curves"].values()))["points"]] if v["curves"] else []
         lines += [
-            f"{v['label']}, seeds {v['seeds']}:",
+            f"{v['label']}, seeds planned {v['seeds']}, finished at L > 0: {v['seeds_finished']}:",
             "",
             "| method | " + " | ".join(f"L = {lat}" for lat in lats) + " | L max minus L 0 |",
             "|---|" + "---|" * (len(lats) + 1),
