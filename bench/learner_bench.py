@@ -3,7 +3,8 @@ full, and memory over a 100k-step run (it must stop growing once the dictionarie
 
 Owed from the learner issue (#2). NS CartPole (slow drift), AdaptiveH (retreat ``local``) and the fixed-H
 learner, one core, one BLAS thread. A run first learns until both dictionaries hold ``budget`` centres
-(ALD threshold lowered to 0.001 so they fill within a few thousand steps), then times ``--timed`` steps
+(ALD threshold 0 while filling: every new state is admitted, so they fill within ``budget`` steps), then,
+back at the default threshold 0.05, times ``--timed`` steps
 and ``--decisions`` action choices. Memory: the process's resident set size at 10k, 25k, 50k, 75k and
 100k steps of one default AdaptiveH run. Writes ``results/learner_bench.json`` and prints it.
 
@@ -44,12 +45,15 @@ def _agent(algo: str, budget: int, ald: float):
 
 
 def speed(algo: str, budget: int, timed: int, decisions: int, fill_cap: int = 60_000) -> dict:
-    agent = _agent(algo, budget, ald=0.001)
+    agent = _agent(algo, budget, ald=0.0)  # every new state is admitted: full after ``budget`` steps
     steps = 0
     while min(len(agent.policy.f), len(agent.critic.dictionary)) < budget and steps < fill_cap:
         agent.learn(500)
         steps += 500
     full = (len(agent.policy.f), len(agent.critic.dictionary))
+    # Timed at the default ALD threshold: a full dictionary then projects most samples and admits (and
+    # prunes for) the novel ones, as in a normal run.
+    agent.policy.f.ald_threshold = agent.critic.ald_threshold = 0.05
     t0 = time.perf_counter()
     agent.learn(timed)
     steps_per_s = timed / (time.perf_counter() - t0)
@@ -72,8 +76,11 @@ def speed(algo: str, budget: int, timed: int, decisions: int, fill_cap: int = 60
 
 
 def memory(total: int, budget: int = 300) -> list[dict]:
-    """RSS along one AdaptiveH run whose dictionaries fill early (ALD 0.001): 10k..100k is the full regime."""
-    agent = _agent("adaptiveh", budget, ald=0.001)
+    """RSS along one AdaptiveH run whose dictionaries are full after the first ``budget`` steps (ALD 0
+    while filling, the default 0.05 after): 10k..100k is the full regime."""
+    agent = _agent("adaptiveh", budget, ald=0.0)
+    agent.learn(budget)
+    agent.policy.f.ald_threshold = agent.critic.ald_threshold = 0.05
     marks = sorted({m for m in (10_000, 25_000, 50_000, 75_000, total) if m <= total})
     out, done = [], 0
     for mark in marks:

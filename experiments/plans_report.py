@@ -27,7 +27,7 @@ from experiments.plans import (
     method_label,
     plan_method,
 )
-from experiments.report import _count, _h_stats, load_runs
+from experiments.report import _count, _h_stats, load_runs, stale_runs
 from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, outcome
 from experiments.verdicts import _overall
 from learner.run_summary import h_stats
@@ -344,12 +344,7 @@ def plans_aggregate(plan: PlansPlan, runs: dict[str, dict[str, Any]], paper_dir:
     settings = {k: _setting(plan, runs, k, paper_baselines(plan, k, paper_dir)) for k in plan.settings}
     latency = _latency(plan, runs)
     drift = _h_drift(plan, runs)
-    stale = [
-        r.name
-        for r in plan.runs
-        if r.name in runs
-        and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
-    ]
+    stale = stale_runs(plan.runs, runs)
     return {
         "plan": {
             "quick": plan.quick,

@@ -23,6 +23,16 @@ from experiments.verdicts import verdicts
 from learner.run_summary import h_stats
 
 
+def stale_runs(planned: list[Any], runs: dict[str, dict[str, Any]]) -> list[str]:
+    """Runs finished under other hyperparameters than the plan's current ones (configs/*.yaml edited
+    since): kept, as finished runs are never recomputed, but named so that nobody mistakes them."""
+    return [
+        r.name
+        for r in planned
+        if r.name in runs
+        and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
+    ]
+
 def load_runs(plan: Plan, out_dir: Path) -> dict[str, dict[str, Any]]:
     runs = {}
     for spec in plan.runs:
@@ -125,14 +135,7 @@ def aggregate(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
             drift[env] = {"key": key, "run": first["name"], "steps": [p[0] for p in pairs],
                           "values": [p[1] for p in pairs]}  # fmt: skip
     missing = [r.name for r in plan.runs if r.name not in runs]
-    # A run finished under other hyperparameters than the plan's current ones (configs/*.yaml edited
-    # since): kept, as finished runs are never recomputed, but named so that nobody mistakes it.
-    stale = [
-        r.name
-        for r in plan.runs
-        if r.name in runs
-        and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
-    ]
+    stale = stale_runs(plan.runs, runs)
     return {
         "plan": {
             "quick": plan.quick,
