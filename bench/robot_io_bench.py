@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from deploy import messages as m
+from deploy.learner_session import LearnerSession
 from deploy.transport import Bus, ZenohConfig, open_session
 from robot_io.config import RobotConfig
 from robot_io.ik import DifferentialIK
@@ -123,7 +124,7 @@ def main() -> None:
     bus.subscribe(m.STATE, on_state)
     bus.subscribe(m.CHUNK_STATUS, on_status)
     bus.subscribe(m.EVENTS_SAFETY, on_safety)
-    chunk_pub = bus.publisher(m.CMD_CHUNK)
+    learner = LearnerSession(bus)  # the bench is the learner: robot-io obeys its session after the reset
     control_pub = bus.publisher(m.CONTROL)
     try:
         deadline = time.monotonic() + 60
@@ -132,6 +133,9 @@ def main() -> None:
         if not states:
             raise RuntimeError("robot-io did not start")
         time.sleep(1.0)
+        reply = learner.reset(-1, timeout=30)
+        if not reply.ok:
+            raise RuntimeError(f"robot-io refused the bench's reset: {reply.detail}")
 
         # State rate: messages received over a window.
         with lock:
@@ -148,7 +152,7 @@ def main() -> None:
         for _ in range(n_rt):
             time.sleep(rng.uniform(0.055, 0.105))  # random phase against the 50 ms period, one tick apart
             t_sent = time.time()
-            sent[chunk_pub(m.ActionChunk(actions=[0.0, 0.0, 0.0]))] = t_sent
+            sent[learner.send(m.ActionChunk(actions=[0.0, 0.0, 0.0]))[0]] = t_sent
         time.sleep(0.5)
         applied = [status[s][1].stamp - sent[s] for s in sent if s in status]
         round_trip = [status[s][0] - sent[s] for s in sent if s in status]
@@ -157,7 +161,7 @@ def main() -> None:
         estop_event, estop_still = [], []
         for i in range(n_estop):
             direction = 1.0 if i % 2 == 0 else -1.0
-            chunk_pub(m.ActionChunk(actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist()))
+            learner.send(m.ActionChunk(actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist()))
             t_wait = time.monotonic() + 3
             while time.monotonic() < t_wait:
                 with lock:

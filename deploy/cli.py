@@ -19,6 +19,7 @@ import sys  # noqa: E402
 from common.config import ConfigError  # noqa: E402
 from deploy import commands  # noqa: E402
 from deploy.commands import die_with_supervisor  # noqa: E402
+from deploy.security import set_command_identity  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     _dump_stacks_on_sigusr1()
     die_with_supervisor()
     args = build_parser().parse_args(argv)
+    set_command_identity(args.command)  # whose certificate and credentials a secured bus wants
     try:
         return int(args.func(args) or 0)
     except ConfigError as exc:  # every command loads its config the same way; say what is wrong, once

@@ -1,11 +1,12 @@
 """The learner process: any registry agent (AdaptiveH, RKHS, TD3, DDPG) on the Zenoh reach env.
 
-Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``telemetry/learner`` for
-every finished episode; obeys ``control`` pause/resume (with the operator token when one is set);
-declares ``alive/learner`` so the robot holds while the learner is gone; checkpoints to
-``checkpoint_dir/checkpoint.pkl`` every ``checkpoint_every`` steps and at the end, and resumes from it
-on restart. In closed loop, AdaptiveH's chunk tail can be its own plan: the policy mean rolled
-forward on the task's model (``learner.plan: policy``). With ``learner.execution: plan`` the agent
+Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``telemetry/learner`` for every
+finished episode; obeys ``control`` pause/resume (with the operator token when one is set); declares
+``alive/learner`` so the robot holds while the learner is gone, and its session
+(``deploy.learner_session``: robot-io obeys only the session that took over with the latest reset);
+checkpoints to ``checkpoint_dir/checkpoint.pkl`` every ``checkpoint_every`` steps and at the end, and
+resumes from it on restart. In closed loop, AdaptiveH's chunk tail can be its own plan: the policy mean
+rolled forward on the task's model (``learner.plan: policy``). With ``learner.execution: plan`` the agent
 plays committed plans through the env (``deploy.zenoh_env``), learning from every executed tick; a
 retreat's plan preempts the rest of the old one, and the planned actions that drops (the non-zero ones
 apart: real motion abandoned) are counted as ``retreat_dropped`` / ``retreat_dropped_moving``.
@@ -26,7 +27,8 @@ from deploy import messages as m
 from deploy.config import StackConfig
 from deploy.node import Node
 from deploy.plan_channel import PlanDrop
-from deploy.zenoh_env import EnvSettings, EnvStopped, ZenohReachEnv
+from deploy.signing import Fresh, authentic
+from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_summary import summarize
@@ -64,8 +66,8 @@ class LearnerNode(Node):
     def __init__(self, settings: StackConfig, control_token: str = "") -> None:
         self.settings = settings
         self.cfg = settings.learner
-        self.control_token = control_token
-        super().__init__(settings.name, settings.zenoh)
+        self._fresh_control = Fresh()
+        super().__init__(settings.name, settings.zenoh, token=control_token)
         self.env = ZenohReachEnv(self.bus, env_settings(settings))
         agent_cfg = self.cfg.agent_config(settings.robot.period)
         self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, agent_cfg)
@@ -89,7 +91,7 @@ class LearnerNode(Node):
         self._retreat_chunks: set[int] = set()
         self.env.on_status = self._on_status
         self.env.on_plan_dropped = self._on_plan_dropped
-        self.bus.subscribe(m.CONTROL, self._on_control)
+        self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
         self.declare_alive()
 
     # -- plan and accounting -------------------------------------------------------------------------
@@ -118,8 +120,9 @@ class LearnerNode(Node):
         command = m.label(msg, "command")
         if command not in ("pause", "resume"):
             return
-        if self.control_token and msg.token != self.control_token:
-            log.warning("control %s with a wrong token ignored", command)
+        key = self.bus.signing_key
+        if key is not None and not (authentic(msg, key) and self._fresh_control(msg.stamp)):
+            log.warning("control %s ignored: not signed with the stack's key, or a replay", command)
             return
         if command == "pause":
             self._paused.set()
@@ -199,6 +202,9 @@ class LearnerNode(Node):
                 self.agent.learn(max(self.cfg.steps - start, 0), callback=callback)
         except EnvStopped:
             log.info("stopped while the robot was held")
+        except TakenOver as exc:
+            log.error("%s", exc)  # the checkpoint is kept; the supervisor decides whether to start again
+            raise
         finally:
             self.save()
         wall = time.perf_counter() - t0
@@ -213,6 +219,8 @@ class LearnerNode(Node):
             "steps_this_session": steps,
             "wall_clock_s": wall,
             "execution": self.cfg.execution,
+            "session": self.env.session.id,
+            "refused_chunks": dict(self.env.refused),
             "latency_ms": self.cfg.latency_ms,
             "chunk_preemptions": self.env.preemptions,
             "dropped_actions": self.env.dropped_total,

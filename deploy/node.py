@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from typing import ClassVar, Self
 
+from deploy.signing import mac_key
 from deploy.transport import Bus, ZenohConfig, open_session
 
 log = logging.getLogger(__name__)
@@ -27,10 +28,13 @@ class Node:
     #: The liveliness token this part declares (``adaptiveh/<robot>/alive/<alive_as>``); "" for none.
     alive_as: ClassVar[str] = ""
 
-    def __init__(self, robot: str, zenoh: ZenohConfig | None = None, bus: Bus | None = None) -> None:
+    def __init__(
+        self, robot: str, zenoh: ZenohConfig | None = None, bus: Bus | None = None, token: str = ""
+    ) -> None:
+        """``token``: the stack's operator token; the part's bus signs and verifies with its key."""
         if bus is None and zenoh is None:
             raise ValueError("a node needs a Zenoh config or a bus")
-        self.bus = bus if bus is not None else Bus(open_session(zenoh), robot)
+        self.bus = bus if bus is not None else Bus(open_session(zenoh), robot, mac_key(token))
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 

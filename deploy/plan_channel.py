@@ -43,6 +43,7 @@ class SentPlan:
     actions: np.ndarray  # as sent (steps capped): what the robot plays
     seq: int
     reason: str | None  # the closed segment's end reason that made this plan ("retreat", ...), if given
+    stamp: float = 0.0  # the chunk's stamp: with the number, what the robot names it by
 
 
 @dataclass(frozen=True)
@@ -76,13 +77,15 @@ class PlanBook:
         self.foreign_ticks = 0  # ticks that played a chunk not in the book (reported as holds)
         self.drops: deque[PlanDrop] = deque(maxlen=256)
 
-    def send(self, put: Callable[[], int], plan: Plan, actions: np.ndarray, reason: str | None) -> int:
-        """``put()`` the chunk (it returns the chunk number) and record it, under the book's lock: a
+    def send(
+        self, put: Callable[[], tuple[int, float]], plan: Plan, actions: np.ndarray, reason: str | None
+    ) -> int:
+        """``put()`` the chunk (it returns the chunk's number and stamp) and record it, under the lock: a
         robot tick or status naming the chunk is never looked up before its entry exists. No Zenoh
         callback is waited on while the lock is held (a put does not wait for subscribers)."""
         with self._lock:
-            seq = put()
-            self._by_seq[seq] = SentPlan(plan, actions, seq, reason)
+            seq, stamp = put()
+            self._by_seq[seq] = SentPlan(plan, actions, seq, reason, stamp)
             self._order.append(seq)
             self.newest_seq = max(self.newest_seq, seq)
             while len(self._order) > self.keep:
@@ -104,8 +107,8 @@ class PlanBook:
             return None
         with self._lock:
             sent, by = self._by_seq.get(msg.chunk_seq), self._by_seq.get(msg.preempted_by)
-            if sent is None:
-                return None  # not one of our plans (closed-loop chunks, another learner)
+            if sent is None or sent.stamp != msg.chunk_stamp:
+                return None  # not one of our plans (closed-loop chunks, another learner, a forgery)
             rest = sent.actions[msg.executed : msg.executed + msg.dropped]
             lengths = np.linalg.norm(rest, axis=1)
             drop = PlanDrop(
@@ -124,14 +127,17 @@ class PlanBook:
             return drop
 
 
-def played(state: m.RobotState, book: PlanBook) -> tuple[int, int, np.ndarray]:
+def played(state: m.RobotState, book: PlanBook, session: str) -> tuple[int, int, np.ndarray]:
     """(plan_id, index, action) of what the tick that produced ``state`` ran: the robot names the chunk
     and index it took from its queue; none (-1, -1, zero) is a hold, as is a chunk that was not one of
-    our plans (its actions are unknown here)."""
+    our plans (its actions are unknown here), and any chunk while the arm obeys another ``session``."""
     if state.played_chunk < 0:
         return -1, -1, np.zeros(3)
+    if state.session != session:
+        book.foreign_ticks += 1
+        return -1, -1, np.zeros(3)
     sent = book.get(state.played_chunk)
-    if sent is None or not 0 <= state.played_index < len(sent.actions):
+    if sent is None or sent.stamp != state.played_stamp or not 0 <= state.played_index < len(sent.actions):
         # E.g. a restarted learner's first ticks, while the last process's plan plays out.
         log.debug("tick %d played chunk %d, not a known plan", state.tick, state.played_chunk)
         book.foreign_ticks += 1

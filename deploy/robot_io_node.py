@@ -7,6 +7,12 @@ answers ``reset``, declares ``alive/robot_io`` and holds the arm while a watched
 token (the learner's, by default) is gone. Physics (pybullet) and IK run on the control thread only;
 Zenoh callbacks just queue work for it, and an e-stop wakes it at once.
 
+Commands are obeyed from one learner session at a time (``robot_io.command_gate``): a reset naming a
+session whose token ``alive/learner/<session>`` is alive takes the arm over; chunks of other sessions,
+stale or implausibly numbered ones are refused (``foreign_command`` event, a ``cmd/status`` with the
+verdict, so the sender knows), and so is a reset from a session without a live token. States and
+statuses name the session, so a learner's acknowledgements are exactly its own.
+
 A chunk is a plan and is refused whole when it is malformed: bytes that do not decode (NaN, a length
 that is not a multiple of 3: ``bad_message``) or a decoded plan that breaks the robot's rules (empty,
 longer than ``robot.max_plan_actions``, a step above ``robot.max_step_m``, a predicted path of another
@@ -25,10 +31,14 @@ import numpy as np
 
 from deploy import messages as m
 from deploy.config import StackConfig
+from deploy.learner_session import SESSIONS
 from deploy.node import Node
+from deploy.signing import ForgedMessage, Fresh, authentic
+from robot_io.command_gate import TakeoverRefused
 from robot_io.controller import ArmState, RobotController, TickResult
 
 log = logging.getLogger(__name__)
+BAD_EVENT_EVERY_S = 1.0  # bad messages past the first in this window are counted into the next event
 
 
 def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
@@ -45,6 +55,9 @@ def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
         tick=s.tick,
         played_chunk=s.played_chunk,
         played_index=s.played_index,
+        session=s.session,
+        chunk_stamp=s.chunk_stamp,
+        played_stamp=s.played_stamp,
     )
 
 
@@ -64,20 +77,24 @@ class RobotIONode(Node):
         self.controller = controller or RobotController(settings.robot)
         self.period = settings.robot.period
         self.watch_peers = watch_peers
-        self.control_token = control_token
-        super().__init__(settings.name, settings.zenoh)
+        self._fresh_reset, self._fresh_control = Fresh(), Fresh()
+        self._last_bad_event, self._bad_unreported = -np.inf, 0
+        super().__init__(settings.name, settings.zenoh, token=control_token)
+        self.mac_key = self.bus.signing_key  # with a token, only signed chunks, resets and controls
         self._pub_state = self.bus.publisher(m.STATE)
         self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
         self._pub_truth = self.bus.publisher(m.TARGET_TRUTH) if self.scene is not None else None
         self._wake = threading.Event()
-        self._resets: list[tuple[int, threading.Event, list[m.ResetReply]]] = []
+        self._resets: list[tuple[m.ResetRequest, threading.Event, list[m.ResetReply]]] = []
         self._lock = threading.Lock()
         self.ticks = 0
-        self.bus.subscribe(m.CMD_CHUNK, self._on_chunk, on_bad=self._on_bad)
-        self.bus.subscribe(m.CONTROL, self._on_control, on_bad=self._on_bad)
+        # Judged here, not by the bus: a forged chunk gets its verdict, an e-stop is obeyed from anyone.
+        self.bus.subscribe(m.CMD_CHUNK, self._on_chunk, on_bad=self._on_bad, verify=False)
+        self.bus.subscribe(m.CONTROL, self._on_control, on_bad=self._on_bad, verify=False)
         self.bus.queryable(m.RESET, self._on_reset)
         self.bus.watch_alive(self._on_alive)
+        self.bus.watch_alive(self.controller.learner_alive, below=SESSIONS)
         self.declare_alive()
 
     @property
@@ -87,35 +104,65 @@ class RobotIONode(Node):
 
     # -- Zenoh callbacks (Zenoh threads) -------------------------------------------------------------
     def _on_bad(self, topic: str, exc: Exception) -> None:
-        if topic == m.CMD_CHUNK.name:  # a plan that does not even decode: refused whole, the arm holds
+        # A plan that does not even decode: refused whole, the arm holds. Not with a token: bytes that do
+        # not decode cannot be shown to be the learner's, and a stranger's must not stop its plan.
+        if topic == m.CMD_CHUNK.name and self.mac_key is None:
             self.controller.refuse_plan("bad_message", f"{topic}: {exc}")
             self._wake.set()  # the control thread publishes the event and the dropped rest at once
             return
-        self._publish_safety("bad_message", f"{topic}: {exc}", self.controller.safety.mode != "running")
+        # A flood of bad bytes must not flood the operator: one event per second, with the count since.
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last_bad_event < BAD_EVENT_EVERY_S:
+                self._bad_unreported += 1
+                return
+            more, self._bad_unreported, self._last_bad_event = self._bad_unreported, 0, now
+        detail = f"{topic}: {exc}" + (
+            f" (and {more} more bad messages since the last report)" if more else ""
+        )
+        self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
     def _on_chunk(self, msg: m.ActionChunk) -> None:
         actions = m.action_array(msg)  # decode already checked the length
-        if msg.predicted_ee and len(msg.predicted_ee) != len(msg.actions):
+        if self.mac_key is not None and not authentic(msg, self.mac_key):
+            detail = f"chunk {msg.seq} of session {msg.session[:16]!r}: not signed with the stack's token"
+            self.controller.report_refusal(detail, time.monotonic())
+            outcome = "forged"
+        elif msg.predicted_ee and len(msg.predicted_ee) != len(msg.actions):
             n_pred = len(msg.predicted_ee) // 3
             self.controller.refuse_plan(
                 "bad_plan", f"chunk {msg.seq}: {n_pred} predicted positions for {len(actions)} actions"
             )
             outcome = "bad_plan"
         else:
-            outcome = self.controller.push_chunk(msg.seq, actions, time.monotonic())
+            outcome = self.controller.push_chunk(msg.session, msg.seq, actions, time.monotonic(), msg.stamp)
         if outcome == "accepted":
             return
-        if outcome == "bad_plan":
-            self._wake.set()
+        self._wake.set()  # the control thread publishes the safety event (and a bad plan's dropped rest)
         log.info("chunk %d not played: %s (mode %s)", msg.seq, outcome, self.controller.safety.mode)
-        self._pub_status(m.ChunkStatus(chunk_seq=msg.seq, executed=0, dropped=len(actions), done=True))
+        self._pub_status(
+            m.ChunkStatus(
+                chunk_seq=msg.seq,
+                executed=0,
+                dropped=len(actions),
+                done=True,
+                session=msg.session,
+                verdict=m.enum(m.ChunkStatus, "verdict", outcome),
+                chunk_stamp=msg.stamp,
+            )
+        )
 
     def _on_control(self, msg: m.Control) -> None:
         command = m.label(msg, "command")
         # An e-stop is always obeyed; everything else needs the operator token when one is set.
-        if command != "estop" and self.control_token and msg.token != self.control_token:
-            self._on_bad(m.CONTROL.name, m.MessageError(f"{command}: wrong operator token"))
-            return
+        if command != "estop" and self.mac_key is not None:
+            why = "not signed with the stack's key" if not authentic(msg, self.mac_key) else ""
+            if not why and not self._fresh_control(msg.stamp):
+                why = "not newer than the last one obeyed (a replay)"
+            if why:
+                log.warning("control %s refused: %s", command, why)
+                self._on_bad(m.CONTROL.name, ForgedMessage(f"{command}: {why}", msg))
+                return
         self.controller.operator(command, np.asarray(msg.jog))
         self._wake.set()
 
@@ -129,9 +176,19 @@ class RobotIONode(Node):
         self._wake.set()
 
     def _on_reset(self, request: m.ResetRequest) -> m.ResetReply:
+        if self.mac_key is not None:  # a reset moves the arm home: only a fresh, signed request
+            why = "not signed with the stack's key" if not authentic(request, self.mac_key) else ""
+            if not why and not self._fresh_reset(request.stamp):
+                why = "not newer than the last reset (a replay)"
+            if why:
+                self.controller.report_refusal(
+                    f"reset of session {request.session[:16]!r}: {why}", time.monotonic()
+                )
+                self._wake.set()
+                return m.ResetReply(ok=False, detail=f"reset refused: {why}")
         done, box = threading.Event(), []
         with self._lock:
-            self._resets.append((request.seed, done, box))
+            self._resets.append((request, done, box))
         self._wake.set()
         if not done.wait(timeout=30.0):
             return m.ResetReply(ok=False, detail="reset timed out")
@@ -153,6 +210,9 @@ class RobotIONode(Node):
                     dropped=report.dropped,
                     preempted_by=report.preempted_by,
                     done=report.done,
+                    session=report.session,
+                    verdict=m.ChunkStatus.ACCEPTED,
+                    chunk_stamp=report.chunk_stamp,
                 )
             )
         self._pub_state(robot_state_message(result.state))
@@ -173,10 +233,14 @@ class RobotIONode(Node):
     def _serve_resets(self) -> None:
         with self._lock:
             resets, self._resets = self._resets, []
-        for seed, done, box in resets:
+        for request, done, box in resets:
+            seed = request.seed if request.seed >= 0 else None  # -1: keep the target's motion
             try:
-                state = self.controller.reset(seed if seed >= 0 else None)  # -1: keep the target's motion
+                self.controller.take_over(request.session)  # a reset is how a learner session takes over
+                state = self.controller.reset(seed)
                 reply = m.ResetReply(ok=True, state=robot_state_message(state, time.time()))
+            except TakeoverRefused as exc:  # reported as a foreign_command safety event
+                reply = m.ResetReply(ok=False, detail=f"reset refused: {exc}")
             except Exception as exc:
                 log.exception("reset failed")
                 reply = m.ResetReply(ok=False, detail=f"{type(exc).__name__}: {exc}")

@@ -31,6 +31,7 @@ from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
 from deploy.foxglove.derive import Deriver, SceneSetup
 from deploy.recording import Recorder
+from deploy.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
 from deploy.transport import Bus, open_session
 from learner.run_summary import h_stats
 
@@ -54,6 +55,15 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
         lines += arm_lines
     if cfg.vision is not None and cfg.vision.camera == "realsense":
         needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
+    if cfg.zenoh.tls is not None or cfg.zenoh.auth is not None:  # each part's certificate and password
+        parts = ["robot_io", "learner"] + [p for p in ("vision", "monitor") if getattr(cfg, p) is not None]
+        for identity in ["supervisor", *(PART_IDENTITY[p] for p in parts)]:
+            try:
+                zenoh_keys(cfg.zenoh, identity)
+                lines.append(f"zenoh identity {identity}: certificate and credentials found")
+            except ConfigError as exc:
+                ok = False
+                lines.append(f"MISSING for zenoh identity {identity}: {exc}")
     for module, why in needs:
         if importlib.util.find_spec(module) is None:
             ok = False
@@ -110,13 +120,17 @@ class Stack:
         tail = ["--config", self.config, "--log-level", "WARNING"]
         return {part: [*base, *args, *tail] for part, args in cmds.items()}
 
-    def part_environment(self) -> dict[str, str]:
-        return {
+    def part_environment(self, part: str | None = None) -> dict[str, str]:
+        """The parts' environment; ``part``'s own Zenoh identity (its certificate on a secured bus)."""
+        env = {
             **os.environ,
             "PYTHONUNBUFFERED": "1",
             SUPERVISOR_ENV: str(os.getpid()),
             TOKEN_ENV: self.token,
         }
+        if part is not None:
+            env[IDENTITY_ENV] = PART_IDENTITY[part]
+        return env
 
     def _spawn(self, part: str) -> None:
         logs = self.run_dir / "logs"
@@ -126,7 +140,7 @@ class Stack:
             self.part_commands()[part],
             stdout=fh,
             stderr=subprocess.STDOUT,
-            env=self.part_environment(),
+            env=self.part_environment(part),
             start_new_session=True,
         )
         log.info("started %s (pid %d)", part, self.procs[part].pid)

@@ -16,11 +16,13 @@ from collections.abc import Callable
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import zenoh
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from common.config import Section
-from deploy import messages
+from deploy import messages, security
 from deploy.messages import Message, MessageError, Service, Topic
+from deploy.security import AuthConfig, RouterConfig, TlsConfig
+from deploy.signing import ForgedMessage, authentic, sign, signed
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
@@ -44,9 +46,30 @@ class ZenohConfig(Section):
     # every session (the lease a peer declares is what the other side waits for).
     lease_ms: int = Field(1000, ge=200)
     options: dict[str, Any] = {}  # extra Zenoh config keys, e.g. {"transport/...": v}
+    # Several machines (deploy.security): mutual TLS, user/password, and the router's access control.
+    # Paths and the user may contain {identity}: the process's own (learner, robot-io, ...).
+    tls: TlsConfig | None = None
+    auth: AuthConfig | None = None
+    router: RouterConfig | None = None  # only for `adaptiveh router --config`
+
+    @model_validator(mode="after")
+    def _secure_endpoints(self) -> ZenohConfig:
+        if self.tls is not None:  # a tcp/ endpoint beside tls: would carry the bus in clear, unauthenticated
+            used = {"connect": self.connect, "listen": self.listen}
+            if not (self.connect or self.listen):
+                used["hub"] = (self.hub,)
+            if self.router is not None:
+                used["router.listen"] = self.router.listen
+            for name, endpoints in used.items():
+                clear = [e for e in endpoints if not e.startswith(("tls/", "quic/"))]
+                if clear:
+                    raise ValueError(f"{name}: {clear} with zenoh.tls set: use tls/host:port endpoints")
+        security.check_router(self)
+        return self
 
 
-def _config(cfg: ZenohConfig, connect: list[str], listen: list[str]) -> zenoh.Config:
+def _config(cfg: ZenohConfig, connect: list[str], listen: list[str], identity: str = "") -> zenoh.Config:
+    """``cfg`` as Zenoh's config; ``identity`` picks this process's certificate and credentials."""
     zc = zenoh.Config()
     zc.insert_json5("mode", json.dumps(cfg.mode))
     zc.insert_json5("connect/endpoints", json.dumps(connect))
@@ -54,6 +77,8 @@ def _config(cfg: ZenohConfig, connect: list[str], listen: list[str]) -> zenoh.Co
     zc.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
     zc.insert_json5("transport/link/tx/lease", json.dumps(cfg.lease_ms))
     zc.insert_json5("transport/link/tx/keep_alive", json.dumps(4))  # keep-alives per lease (Zenoh's default)
+    for key, value in security.zenoh_keys(cfg, identity).items():
+        zc.insert_json5(key, json.dumps(value))
     for key, value in cfg.options.items():
         zc.insert_json5(key, json.dumps(value))
     return zc
@@ -66,8 +91,12 @@ def own_listener(hub: str) -> str:
     return f"{proto}/{host}:0"
 
 
-def open_session(cfg: ZenohConfig) -> zenoh.Session:
+def open_session(cfg: ZenohConfig, identity: str | None = None) -> zenoh.Session:
     """Open a session; with no endpoints configured, listen on the hub or, if taken, join through it.
+
+    ``identity`` (default: ``$ADAPTIVEH_ZENOH_IDENTITY``, else the CLI command's) names this process's
+    certificate and credentials when ``cfg`` has ``tls``/``auth`` (deploy.security); a missing file is a
+    ConfigError naming the key.
 
     Peers in Zenoh's default ``peer_to_peer`` routing never forward for each other, so a joiner that only
     connected to the hub reached the hub's owner and nobody else (tried: the third process heard one of
@@ -75,15 +104,16 @@ def open_session(cfg: ZenohConfig) -> zenoh.Session:
     the other peers, which connect to it directly (a full mesh), so any number of parts reach each other
     and the mesh survives the hub's owner leaving.
     """
+    me = security.process_identity() if identity is None else identity
     if cfg.connect or cfg.listen:
-        return zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen)))
+        return zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen), me))
     if cfg.mode == "client":
-        return zenoh.open(_config(cfg, [cfg.hub], []))
+        return zenoh.open(_config(cfg, [cfg.hub], [], me))
     try:
-        return zenoh.open(_config(cfg, [], [cfg.hub]))
+        return zenoh.open(_config(cfg, [], [cfg.hub], me))
     except zenoh.ZError:
         log.info("zenoh hub %s already taken; joining through it", cfg.hub)
-        return zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)]))
+        return zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)], me))
 
 
 class Publisher(Generic[M]):
@@ -93,10 +123,17 @@ class Publisher(Generic[M]):
     chunk's seq is how the robot reports on it).
     """
 
-    def __init__(self, pub: zenoh.Publisher, topic: Topic[M], first_seq: int = 1) -> None:
+    def __init__(
+        self,
+        pub: zenoh.Publisher,
+        topic: Topic[M],
+        first_seq: int = 1,
+        seal: Callable[[M], None] | None = None,
+    ) -> None:
         self._pub = pub
         self.topic = topic
         self._seq = first_seq - 1
+        self._seal = seal  # called after stamping, before serializing (e.g. to sign the message)
         self._lock = threading.Lock()
 
     def put(self, msg: M) -> int:
@@ -106,6 +143,8 @@ class Publisher(Generic[M]):
             self._seq += 1
             msg.seq = self._seq
             msg.stamp = time.time()
+            if self._seal is not None:
+                self._seal(msg)
             self._pub.put(msg.SerializeToString())
             return self._seq
 
@@ -113,11 +152,17 @@ class Publisher(Generic[M]):
 
 
 class Bus:
-    """Typed access to ``adaptiveh/<robot>/…`` on one session. Counts bad messages per topic."""
+    """Typed access to ``adaptiveh/<robot>/…`` on one session. Counts bad messages per topic.
 
-    def __init__(self, session: zenoh.Session, robot: str) -> None:
+    With the stack's ``key`` (``deploy.signing.mac_key`` of the operator token) it signs every message
+    of a type that has a ``mac`` as it is put (or sent as a query), and drops received ones that do not
+    verify, as bad messages (a subscriber may opt out to judge them itself: robot-io answers a forged
+    chunk, and obeys an e-stop from anyone)."""
+
+    def __init__(self, session: zenoh.Session, robot: str, key: bytes | None = None) -> None:
         self.session = session
         self.robot = robot
+        self.signing_key = key
         self.bad_messages: dict[str, int] = {}
         self._lock = threading.Lock()
         self._declared: list[Any] = []
@@ -130,23 +175,46 @@ class Bus:
             self.bad_messages[name] = self.bad_messages.get(name, 0) + 1
         log.warning("bad message on %s: %s", self.key(name), exc)
 
-    def publisher(self, topic: Topic[M], express: bool = True, first_seq: int = 1) -> Publisher[M]:
-        """A publisher of ``topic``'s type on its key."""
+    def publisher(
+        self,
+        topic: Topic[M],
+        express: bool = True,
+        first_seq: int = 1,
+        seal: Callable[[M], None] | None = None,
+    ) -> Publisher[M]:
+        """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed)."""
         pub = self.session.declare_publisher(self.key(topic), express=express)
         self._declared.append(pub)
-        return Publisher(pub, topic, first_seq)
+        return Publisher(pub, topic, first_seq, self._sealer(topic.type, seal))
+
+    def _sealer(self, cls: type[M], seal: Callable[[M], None] | None) -> Callable[[M], None] | None:
+        key = self.signing_key
+        if key is None or not signed(cls):
+            return seal
+
+        def seal_and_sign(msg: M) -> None:
+            if seal is not None:
+                seal(msg)
+            sign(msg, key)
+
+        return seal_and_sign
 
     def subscribe(
         self,
         topic: Topic[M],
         callback: Callable[[M], None],
         on_bad: Callable[[str, Exception], None] | None = None,
+        verify: bool = True,
     ) -> None:
-        """Call ``callback`` with each decoded message; bad bytes are logged, counted and reported."""
+        """Call ``callback`` with each decoded (and, with a key, authentic) message; bad bytes are logged,
+        counted and reported to ``on_bad``."""
+        key = self.signing_key if verify and signed(topic.type) else None
 
         def handler(sample: zenoh.Sample) -> None:
             try:
                 msg = topic.decode(sample.payload.to_bytes())
+                if key is not None and not authentic(msg, key):
+                    raise ForgedMessage(f"{topic.name}: not signed with the stack's key", msg)
             except MessageError as exc:
                 self._bad(topic.name, exc)
                 if on_bad is not None:
@@ -180,9 +248,19 @@ class Bus:
 
         self._declared.append(self.session.declare_queryable(self.key(service), on_query))
 
-    def query(self, service: Service[M, R], request: M, timeout: float = 10.0) -> R:
-        """Send ``request`` and return the first reply; raises TimeoutError or MessageError."""
+    def query(
+        self,
+        service: Service[M, R],
+        request: M,
+        timeout: float = 10.0,
+        seal: Callable[[M], None] | None = None,
+    ) -> R:
+        """Send ``request`` (stamped, then ``seal``-ed) and return the first reply; raises TimeoutError or
+        MessageError."""
         request.stamp = time.time()
+        sealer = self._sealer(service.request, seal)
+        if sealer is not None:
+            sealer(request)
         payload = request.SerializeToString()
         for reply in self.session.get(self.key(service), payload=payload, timeout=timeout):
             if reply.ok is not None:
@@ -198,9 +276,10 @@ class Bus:
         self._declared.append(token)
         return token
 
-    def watch_alive(self, on_change: Callable[[str, bool], None]) -> None:
-        """``on_change(name, alive)`` for every peer token, including those already present."""
-        prefix = self.key(messages.LIVELINESS) + "/"
+    def watch_alive(self, on_change: Callable[[str, bool], None], below: str = "") -> None:
+        """``on_change(name, alive)`` for every peer token (``alive/<name>``, or ``alive/<below>/<name>``),
+        including those already present."""
+        prefix = self.key(messages.LIVELINESS) + "/" + (f"{below}/" if below else "")
 
         def handler(sample: zenoh.Sample) -> None:
             name = str(sample.key_expr)[len(prefix) :]

@@ -36,6 +36,7 @@ import gymnasium as gym
 import numpy as np
 
 from deploy import messages as m
+from deploy.learner_session import REFUSALS, LearnerSession
 from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
 from deploy.transport import Bus
 from learner.plans import Executed, Plan
@@ -50,10 +51,20 @@ from tasks.reach import (
 
 log = logging.getLogger(__name__)
 SUSPENDED = ("estop", "paused", "fault")  # robot modes in which a tick is not a step of the task
+WHY_REFUSED = {
+    "foreign": "another learner session has the arm",
+    "forged": "our signature is not robot-io's: is the learner's operator token the stack's?",
+}
+MAX_REFUSED_IN_A_ROW = 64  # more than a forgery inside robot.max_chunk_seq_gap can cost: not a glitch
+MAX_SIGNED_REFUSED = 3  # signed chunks that timed out refused while the arm runs: a wrong token
 
 
 class EnvStopped(RuntimeError):
     """The node is shutting down while ``step`` waited for a held robot."""
+
+
+class TakenOver(RuntimeError):
+    """robot-io obeys another learner session now: this one's chunks are refused as foreign."""
 
 
 Planner = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
@@ -99,6 +110,7 @@ class ZenohReachEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, bus: Bus, settings: EnvSettings, planner: Planner | None = None) -> None:
+        """A ``bus`` with the stack's key signs this learner's chunks (``deploy.signing``)."""
         self.bus = bus
         self.settings = settings
         self.planner = planner
@@ -117,7 +129,7 @@ class ZenohReachEnv(gym.Env):
         self._target: m.Target | None = None
         self._target_lost = False
         self.target_waits = 0  # outages the closed loop waited out
-        self.chunk_seq = 0  # the last chunk sent
+        self.chunk_seq = -1  # the last chunk sent
         self.global_step = 0
         self._steps = 0
         self.dropped_total = 0
@@ -135,10 +147,16 @@ class ZenohReachEnv(gym.Env):
         self.on_plan_dropped: Callable[[PlanDrop], None] | None = None
         delay = settings.latency_ms / 1000.0
         self._sender = DelayedSender(self._publish_plan, delay, self.stop) if delay > 0 else None
-        # Chunk numbers start from the wall clock so a restarted learner's chunks are newer than the last
-        # run's (robot-io refuses older ones).
-        first = int(time.time() * 1000) % 1_000_000_000
-        self._pub_chunk = bus.publisher(m.CMD_CHUNK, first_seq=first)
+        # This learner's session: its chunks are numbered from 0 and obeyed once ``reset`` has taken over.
+        self.session = LearnerSession(bus)
+        self.refused: dict[str, int] = {}  # own chunks robot-io refused, by verdict
+        # Closed loop, by (number, stamp): our chunks refused, and ended (-> actions played), not yet seen
+        # by the step loop.
+        self._refused_chunks: set[tuple[int, float]] = set()
+        self._ended: dict[tuple[int, float], int] = {}
+        self._played: set[tuple[int, float]] = set()  # chunks a tick of ours played an action of
+        self._taken_over_by = ""
+        self._obeyed_since_tick: int | None = None  # the tick of our takeover (reset); None before it
         self.target_topic = m.TOPICS[settings.target_topic]
         bus.subscribe(m.STATE, self._on_state)
         bus.subscribe(self.target_topic, self._on_target)
@@ -150,6 +168,11 @@ class ZenohReachEnv(gym.Env):
         with self._cond:
             self._state = msg
             self._state_count += 1
+            if msg.played_chunk >= 0 and not self.plan_mode and self.session.mine(msg):
+                self._played.add((msg.played_chunk, msg.played_stamp))  # the tick ran this chunk's action
+            since = self._obeyed_since_tick
+            if since is not None and msg.tick > since and not self.session.mine(msg):
+                self._taken_over_by = msg.session or "(none)"  # the arm obeys another session since ours
             if self.plan_mode and msg.tick > self._buffered_tick:
                 self._buffered_tick = msg.tick
                 self._ticks.append((msg, self._target))
@@ -180,6 +203,16 @@ class ZenohReachEnv(gym.Env):
         log.warning("target back after %.1f s", time.monotonic() - t0)
 
     def _on_status(self, msg: m.ChunkStatus) -> None:
+        if not self.session.mine(msg):
+            return  # another session's chunk (a stranger, or the learner before a restart)
+        verdict = m.label(msg, "verdict")
+        if verdict in REFUSALS:
+            self._on_refused(msg, verdict)
+            return
+        if msg.done and not self.plan_mode:
+            with self._cond:
+                self._ended[msg.chunk_seq, msg.chunk_stamp] = msg.executed
+                self._cond.notify_all()
         if msg.preempted_by >= 0 and msg.dropped:
             self.dropped_total += msg.dropped
             self.preemptions += 1
@@ -188,6 +221,21 @@ class ZenohReachEnv(gym.Env):
             self.on_plan_dropped(drop)
         if self.on_status is not None:
             self.on_status(msg)
+
+    def _on_refused(self, msg: m.ChunkStatus, verdict: str) -> None:
+        """robot-io refused our chunk: say so (once per kind, then every 100th), let a waiting step resend."""
+        with self._cond:
+            n = self.refused[verdict] = self.refused.get(verdict, 0) + 1
+            self._refused_chunks.add((msg.chunk_seq, msg.chunk_stamp))
+            self._cond.notify_all()
+        if n == 1 or n % 100 == 0:
+            log.warning(
+                "robot-io refused our chunk %d as %s (%d so far): %s",
+                msg.chunk_seq,
+                verdict,
+                n,
+                WHY_REFUSED.get(verdict, "a forged or corrupted chunk number got in before ours; resending"),
+            )
 
     # -- helpers -------------------------------------------------------------------------------------
     @property
@@ -231,6 +279,7 @@ class ZenohReachEnv(gym.Env):
             "target_speed": float(np.linalg.norm(target.velocity)),
             "target_age_s": max(0.0, time.time() - target.stamp),
             "dropped_total": self.dropped_total,
+            "tick": state.tick,  # the robot's control tick the observation is from
         }
         return obs, distance, info
 
@@ -245,10 +294,8 @@ class ZenohReachEnv(gym.Env):
             if self.stop.is_set():
                 raise EnvStopped("stopped while resetting the robot")
             try:
-                reply = self.bus.query(
-                    m.RESET,
-                    m.ResetRequest(seed=seed if seed is not None else -1),
-                    timeout=min(10.0, self.settings.reset_timeout_s),
+                reply = self.session.reset(
+                    seed if seed is not None else -1, timeout=min(10.0, self.settings.reset_timeout_s)
                 )
                 if reply.ok:
                     break
@@ -260,15 +307,15 @@ class ZenohReachEnv(gym.Env):
             time.sleep(0.5)
         state = reply.state
         with self._cond:
+            self._taken_over_by = ""  # the reset made this session the one the arm obeys
+            self._obeyed_since_tick = state.tick
             if state.tick >= (self._state.tick if self._state is not None else -1):
                 self._state = state
         # Only a target detected after the reset: a reset moves the (simulated) target, and the last
         # message from before it (or the tracker coasting on the old track) put 20-40 cm jumps inside
         # episodes (measured), which wrecked the critic.
         if not self._wait(lambda: _fixed_since(self._target, state.stamp), self.settings.reset_timeout_s):
-            raise TimeoutError(
-                f"no valid target on {self.bus.key(self.target_topic)} since the reset"
-            )
+            raise TimeoutError(f"no valid target on {self.bus.key(self.target_topic)} since the reset")
         with self._cond:
             # The episode starts at the newest tick (the arm held since the reset: nothing queued);
             # ``advance`` returns the ticks after it, each paired with a target from after the reset.
@@ -294,20 +341,50 @@ class ZenohReachEnv(gym.Env):
         chunk = self._chunk(obs_now, action)
         if self.settings.latency_ms > 0:
             time.sleep(self.settings.latency_ms / 1000.0)  # thinking time; the last chunk's tail plays
+        # Signed chunks (a stack token): only this learner can make a chunk robot-io accepts, and every one
+        # has a fresh number, so a refusal naming ours is about a copy (a replay, an altered one): ignored
+        # here, counted in ``refused``. Unsigned, a forged chunk can take our next number: resend at once.
+        signed = self.bus.signing_key is not None
+        refused_in_a_row = 0
         while True:
             if self.stop.is_set():
                 raise EnvStopped("stopped while waiting for the robot")
-            seq = self._pub_chunk(m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment))
-            self.chunk_seq = seq
-            n = len(chunk)
+            self._check_taken_over()
+            if refused_in_a_row > (MAX_SIGNED_REFUSED if signed else MAX_REFUSED_IN_A_ROW):
+                raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {self.refused}")
+            with self._cond:
+                tick0 = self._state.tick if self._state is not None else -1
+            sent = self.session.send(m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment))
+            self.chunk_seq = sent[0]
 
-            def executed(seq: int = seq, n: int = n) -> bool:
-                s = self._state
-                return s is not None and (s.chunk_seq > seq or (s.chunk_seq == seq and s.queue_len < n))
+            def answered(sent: tuple[int, float] = sent) -> bool:
+                done = sent in self._ended or (sent in self._refused_chunks and not signed)
+                return sent in self._played or done or bool(self._taken_over_by)
 
-            if self._wait(executed, self.settings.step_timeout_s):
-                break
-            # Not executed: the arm is held (e-stop, pause, lost peer). Wait until it runs, then resend.
+            # Exact acknowledgement: a tick's state naming this chunk (session, number, stamp) as the one it
+            # played, or its end report with an action played (cut by a newer chunk, e.g. a forgery inside
+            # the gap). Not "the queue shrank": a queue cleared by a refusal has not played anything.
+            if self._wait(answered, self.settings.step_timeout_s):
+                with self._cond:
+                    by_state = sent in self._played
+                    by_report = self._ended.get(sent, 0) > 0
+                    self._played.clear()
+                    refused = sent in self._refused_chunks and not signed
+                    self._refused_chunks.clear()
+                    self._ended.clear()
+                if by_report and not by_state:
+                    # The report comes before the state of the tick that played it: the observation must be
+                    # the state after the action, so wait for that tick's state.
+                    self._wait(lambda t=tick0: self._state.tick > t, self.settings.step_timeout_s)
+                if by_state or by_report:
+                    break
+                if refused:
+                    refused_in_a_row += 1
+                    continue  # stale or a jump (a forged number got in first): resend with the next one
+            elif signed and self.robot_mode == "running" and sent in self._refused_chunks:
+                refused_in_a_row += 1  # not played in time, and refused: e.g. a token that is not robot-io's
+            # Not played: the arm is held (e-stop, pause, lost peer), the chunk was cut before it played,
+            # or another session took over (checked before the resend). Wait until it runs, then resend.
             while not self._wait(lambda: self.robot_mode == "running" or self.stop.is_set(), 0.5):
                 pass
             if self.stop.is_set():
@@ -317,6 +394,16 @@ class ZenohReachEnv(gym.Env):
         obs, distance, info = self._observe()
         truncated = self._steps >= self.settings.max_episode_steps
         return obs, reach_reward(distance), False, truncated, info
+
+    def _check_taken_over(self) -> None:
+        """Raise ``TakenOver`` when robot-io obeys another session: a learner never fights another one
+        for the arm behind the operator's back (its supervisor decides whether to start it again)."""
+        with self._cond:
+            other = self._taken_over_by
+        if other:
+            raise TakenOver(
+                f"robot-io obeys learner session {other[:16]!r}, not ours ({self.session.id}); stopping"
+            )
 
     # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
@@ -339,7 +426,7 @@ class ZenohReachEnv(gym.Env):
         msg = m.ActionChunk(
             actions=actions.ravel().tolist(), segment=segment, predicted_ee=predicted.ravel().tolist()
         )
-        self.chunk_seq = self.book.send(lambda: self._pub_chunk(msg), plan, actions, reason)
+        self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions, reason)
 
     def queued(self, n: int) -> np.ndarray:
         """The next ``n`` (or fewer) actions the robot will play if no newer plan arrives, as of the last
@@ -349,11 +436,13 @@ class ZenohReachEnv(gym.Env):
             last = self._last_state
         newest = self.book.newest()
         rest = np.zeros((0, 3))
-        if newest is not None and last is not None and newest.seq > last.chunk_seq:
+        if last is not None and not self.session.mine(last):
+            last = None  # the arm played no chunk of ours yet (a reset's state from before the takeover)
+        if newest is not None and (last is None or newest.seq > last.chunk_seq):
             rest = newest.actions
         elif last is not None and last.queue_len:
             sent = self.book.get(last.chunk_seq)
-            if sent is not None:
+            if sent is not None and sent.stamp == last.chunk_stamp:
                 rest = sent.actions[len(sent.actions) - last.queue_len :]
         return rest[: max(n, 0)].copy()
 
@@ -372,10 +461,11 @@ class ZenohReachEnv(gym.Env):
 
     def advance(self) -> Executed:
         """The robot's next control tick as an executed step (see the module docstring)."""
+        self._check_taken_over()
         state, target = self._next_tick()
         with self._cond:
             self._last_state = state
-        plan_id, index, action = played(state, self.book)
+        plan_id, index, action = played(state, self.book, self.session.id)
         self._steps += 1
         self.global_step += 1
         obs, distance, info = self._observe(state, target)

@@ -1,13 +1,16 @@
 """One run of the plan, in its own process: build the env and agent, learn, write ``runs/<name>.json``.
 
-Each run records its wall-clock (of ``learn``), its process's peak RSS (``ru_maxrss``), the commit of
+Each run records its wall-clock (of ``learn``), its process's own peak RSS (``VmHWM``), the commit of
 the code it ran, and its episodes and segments, so the report is rebuilt from the run files alone.
+``compute_run`` makes the record, ``write_run`` stores it: the local executor does both in the run's
+process, the Ray executor (``experiments.runner``) computes on a cluster node and the driver writes.
 """
 
 from __future__ import annotations
 
 import json
 import resource
+import socket
 import sys
 import time
 import traceback
@@ -50,12 +53,60 @@ def _seed_once(env: Any) -> Any:
     return _SeedOnce(env)
 
 
+def peak_rss_kib() -> float:
+    """This process's own peak resident set, KiB: ``VmHWM`` of ``/proc/self/status`` on Linux.
+
+    Not ``ru_maxrss`` there: Linux carries the peak RSS of the address space a process replaced at
+    ``exec`` over into it, so a run started from a large parent (a Ray worker, ~100 MB) would report
+    at least the parent's size. ``ru_maxrss`` (KiB on Linux) elsewhere.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1])
+    except OSError:
+        pass
+    return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
+def make_bench_agent(algo: str, env: Any, seed: int, config: dict[str, Any]) -> Any:
+    """The registry's agents (``learner.registry.make_agent``), and the SB3 baselines it does not list
+    (SAC, PPO) straight from ``learner.baselines``."""
+    from learner.registry import ALGOS, make_agent
+
+    if algo in ALGOS:
+        return make_agent(algo, env, seed, config)
+    from learner.baselines import SB3_CLASSES, SB3Agent
+
+    if algo in SB3_CLASSES:
+        return SB3Agent(algo, env, config, seed)
+    raise ValueError(f"unknown algo {algo!r}")
+
+
 def execute_run(spec: RunSpec, out_dir: str) -> dict[str, Any]:
     """Run one spec to completion and write ``runs/<name>.json``; errors come back, never raise."""
     try:
-        return _execute(spec, Path(out_dir))
+        result = compute_run(spec)
+        write_run(Path(out_dir), result)
+        return brief(result)
     except Exception:  # noqa: BLE001 - a failed run is reported and stays missing, the others go on
         return {"name": spec.name, "error": traceback.format_exc(limit=8)}
+
+
+def brief(result: dict[str, Any]) -> dict[str, Any]:
+    """What the runner's progress line needs of a run record."""
+    return {k: result[k] for k in ("name", "wall_s", "peak_rss_mb", "global_step")}
+
+
+def write_run(out_dir: Path, result: dict[str, Any]) -> Path:
+    """Store a run record as ``runs/<name>.json``, atomically: the file exists only when complete."""
+    runs_dir = out_dir / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    tmp = runs_dir / f".{result['name']}.json.tmp"
+    tmp.write_text(json.dumps(result))
+    path = runs_dir / f"{result['name']}.json"
+    tmp.replace(path)
+    return path
 
 
 def code_version() -> dict[str, Any]:
@@ -81,16 +132,16 @@ def code_version() -> dict[str, Any]:
     return {"commit": commit.stdout.strip(), "dirty": bool(dirty.stdout.strip()), "root": str(root)}
 
 
-def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
-    from learner.registry import make_agent
-
+def compute_run(spec: RunSpec, code: dict[str, Any] | None = None, executor: str = "local") -> dict[str, Any]:
+    """Learn one spec in this process and return its run record (``code``: the commit it runs, by
+    default this tree's; the Ray executor passes the driver's, whose tree it ships to the workers)."""
     env_spec = spec.env_spec
     env = make_env(env_spec, spec.env_kwargs)
-    agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
+    agent = make_bench_agent(spec.algo, env, spec.seed, dict(spec.config))
     t0 = time.perf_counter()
     log = agent.learn(spec.steps)
     wall = time.perf_counter() - t0
-    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    peak_kb = peak_rss_kib()
     channel = getattr(agent, "channel", None)  # plan execution: what the plan queue played and dropped
     env.close()
     eps = log.episodes
@@ -111,7 +162,9 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
         "steps_per_s": log.global_step / wall if wall > 0 else None,
         "peak_rss_mb": peak_kb / 1024.0,
         "python": sys.version.split()[0],
-        "code": code_version(),
+        "code": code if code is not None else code_version(),
+        "executor": executor,
+        "host": socket.gethostname(),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
         "metrics": run_metrics(
             [e.global_step for e in eps], [e.ret for e in eps], spec.steps, env_spec.threshold
@@ -136,9 +189,26 @@ def _execute(spec: RunSpec, out_dir: Path) -> dict[str, Any]:
             "latency_steps": int(getattr(channel, "latency", 0)),
         },
     }
-    runs_dir = out_dir / "runs"
-    runs_dir.mkdir(parents=True, exist_ok=True)
-    tmp = runs_dir / f".{spec.name}.json.tmp"
+    return result
+
+
+def _main(work: str) -> int:
+    """``python -m experiments.execute DIR``: the run pickled in ``DIR/spec.pkl`` (with the code
+    version to record) into ``DIR/result.json``, an ``error`` record if it fails (the Ray executor's
+    fresh process per run)."""
+    import pickle
+
+    folder = Path(work)
+    spec, code = pickle.loads((folder / "spec.pkl").read_bytes())  # noqa: S301 - written by our runner
+    try:
+        result = compute_run(spec, code, executor="ray")
+    except Exception:  # noqa: BLE001 - reported to the driver, which names the failed run
+        result = {"name": spec.name, "error": traceback.format_exc(limit=8)}
+    tmp = folder / ".result.json.tmp"
     tmp.write_text(json.dumps(result))
-    tmp.replace(runs_dir / f"{spec.name}.json")  # atomic: a run file exists only when complete
-    return {k: result[k] for k in ("name", "wall_s", "peak_rss_mb", "global_step")}
+    tmp.replace(folder / "result.json")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main(sys.argv[1]))

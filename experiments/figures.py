@@ -8,7 +8,14 @@ from typing import Any
 from experiments.metrics import RETURN_WINDOW
 from experiments.plan import ALGO_LABELS, ENVS, MAIN_ENVS, SPEED_ENVS, Plan
 
-ALGO_COLORS = {"adaptiveh": "tab:red", "td3": "tab:blue", "ddpg": "tab:green", "rkhs": "tab:purple"}
+ALGO_COLORS = {
+    "adaptiveh": "tab:red",
+    "td3": "tab:blue",
+    "ddpg": "tab:green",
+    "sac": "tab:orange",
+    "ppo": "tab:brown",
+    "rkhs": "tab:purple",
+}
 
 
 def _kilo_steps(ax: Any) -> None:

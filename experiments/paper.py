@@ -14,7 +14,7 @@ from experiments.runner import run_plan
 def main_paper(
     quick: bool,
     out: Path,
-    jobs: int,
+    jobs: int | None,
     seeds: int | None = None,
     steps: int | None = None,
     envs: list[str] | None = None,
@@ -22,12 +22,15 @@ def main_paper(
     report_only: bool = False,
     overrides: dict[str, dict[str, Any]] | None = None,
     progress: bool = True,
+    executor: str = "local",
+    ray_address: str | None = None,
 ) -> dict[str, Any]:
-    """Run (unless ``report_only``) and report; returns the summary."""
+    """Run (unless ``report_only``) with ``executor`` (``experiments.runner``) and report; returns the
+    summary."""
     plan = build_plan(quick, seeds, steps, envs, algos, overrides)
     outcome = {"skipped": [], "ran": [], "failed": []}
     if not report_only:
-        outcome = run_plan(plan, out, jobs, progress)
+        outcome = run_plan(plan, out, jobs, progress, executor=executor, ray_address=ray_address)
     summary = report(plan, out)
     summary["last_invocation"] = {k: len(v) for k, v in outcome.items()}
     summary["failed_runs"] = outcome["failed"]

@@ -1,4 +1,5 @@
-"""The paper's experiments ("Results Analysis"): which runs make AdaptiveH vs TD3, DDPG and fixed-H RKHS.
+"""The paper's experiments ("Results Analysis"): which runs make AdaptiveH vs TD3, DDPG, SAC, PPO and
+fixed-H RKHS.
 
 One plan of runs: environment x algorithm x seed, equal env steps per environment, the same seeded
 non-stationary schedule for every algorithm at a given seed. ``runner`` executes it (resumable, one
@@ -16,7 +17,20 @@ from pydantic import Field
 from common.config import Section
 from learner.registry import ALGOS
 
-ALGO_LABELS = {"adaptiveh": "AdaptiveH", "td3": "TD3", "ddpg": "DDPG", "rkhs": "RKHS fixed-H"}
+# The bench's methods, in the paper's order: the learner registry's (``learner.registry.ALGOS``) plus
+# SAC and PPO, which the bench builds through ``learner.baselines`` (``execute.make_bench_agent``) while
+# the registry does not list them; an algorithm the registry gains is appended.
+PAPER_ORDER = ("adaptiveh", "td3", "ddpg", "sac", "ppo", "rkhs")
+PAPER_ALGOS: tuple[str, ...] = tuple(dict.fromkeys((*PAPER_ORDER, *ALGOS)))
+SB3_ALGOS = ("td3", "ddpg", "sac", "ppo")  # the stable-baselines3 baselines: zoo hyperparameters
+ALGO_LABELS = {
+    "adaptiveh": "AdaptiveH",
+    "td3": "TD3",
+    "ddpg": "DDPG",
+    "sac": "SAC",
+    "ppo": "PPO",
+    "rkhs": "RKHS fixed-H",
+}
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
@@ -139,8 +153,9 @@ def _config_file(env: EnvSpec) -> dict[str, Any]:
 
 def agent_config(env: EnvSpec, algo: str) -> dict[str, Any]:
     """Hyperparameters per algorithm: RKHS learners from ``configs/<env>.yaml`` (the learner's tuned
-    values, the fixed-H baseline uses the same ones), TD3/DDPG the zoo's (``learner.baselines``)."""
-    if algo in ("td3", "ddpg"):
+    values, the fixed-H baseline uses the same ones), TD3/DDPG/SAC/PPO the zoo's Pendulum-v1 values on
+    every env (``learner.baselines``: the defaults of its config classes)."""
+    if algo in SB3_ALGOS:
         return {}
     return dict(_config_file(env).get("agent") or {})
 
@@ -162,13 +177,13 @@ def build_plan(
 ) -> Plan:
     """The runs of the full (or ``quick``) experiment, ordered so that a partial run is already useful."""
     env_keys = list(envs or ENVS)
-    algo_keys = list(algos or ALGOS)
+    algo_keys = list(algos or PAPER_ALGOS)
     for key in env_keys:
         if key not in ENVS:
             raise ValueError(f"unknown env {key!r}; choose from {sorted(ENVS)}")
     for algo in algo_keys:
-        if algo not in ALGOS:
-            raise ValueError(f"unknown algo {algo!r}; choose from {ALGOS}")
+        if algo not in PAPER_ALGOS:
+            raise ValueError(f"unknown algo {algo!r}; choose from {PAPER_ALGOS}")
     n_seeds = seeds if seeds is not None else (QUICK_SEEDS if quick else FULL_SEEDS)
     if n_seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {n_seeds}")

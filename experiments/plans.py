@@ -188,7 +188,7 @@ def build_plans_plan(
 def main_plans(
     quick: bool,
     out: Path,
-    jobs: int,
+    jobs: int | None,
     seeds: int | None = None,
     latency_seeds: int | None = None,
     steps: int | None = None,
@@ -196,6 +196,8 @@ def main_plans(
     report_only: bool = False,
     progress: bool = True,
     paper_dir: Path | None = None,
+    executor: str = "local",
+    ray_address: str | None = None,
     **shape: Any,
 ) -> dict[str, Any]:
     """Run what is unfinished (unless ``report_only``), then report; returns the summary."""
@@ -207,7 +209,9 @@ def main_plans(
     plan = build_plans_plan(quick, seeds, latency_seeds, steps, settings, **shape)
     outcome: dict[str, list[str]] = {"skipped": [], "ran": [], "failed": []}
     if not report_only:
-        outcome = run_plan(plan, out, jobs, progress, label="plans bench")  # type: ignore[arg-type]
+        outcome = run_plan(  # type: ignore[arg-type]
+            plan, out, jobs, progress, label="plans bench", executor=executor, ray_address=ray_address
+        )
     summary = plans_report(plan, out, paper_dir)
     summary["last_invocation"] = {k: len(v) for k, v in outcome.items()}
     summary["failed_runs"] = outcome["failed"]

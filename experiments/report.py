@@ -33,6 +33,7 @@ def stale_runs(planned: list[Any], runs: dict[str, dict[str, Any]]) -> list[str]
         and (runs[r.name].get("config"), runs[r.name].get("env_kwargs")) != (r.config, r.env_kwargs)
     ]
 
+
 def load_runs(plan: Plan, out_dir: Path) -> dict[str, dict[str, Any]]:
     runs = {}
     for spec in plan.runs:
@@ -121,6 +122,7 @@ def aggregate(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
                 "steps_to_threshold": bootstrap_mean([x["steps_to_threshold"] for x in m]),
                 "reached_fraction": float(np.mean([x["reached"] for x in m])) if m else None,
                 "wall_s": bootstrap_mean([x["wall_s"] for x in g]),
+                "steps_per_s": bootstrap_mean([_steps_per_s(x) for x in g]),
                 "peak_rss_mb": bootstrap_mean([x["peak_rss_mb"] for x in g]),
                 "curve": _curve_stats(g),
             }
@@ -152,12 +154,53 @@ def aggregate(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
         "H": h,
         "drift": drift,
         "verdicts": verdicts(plan, runs, h),
+        "cost": cost(plan, runs),
         "missing_runs": missing,
         "stale_runs": stale,
         # Which code produced the runs: commits (with run counts) and runs made from a modified tree.
         "code_commits": _count([str((r.get("code") or {}).get("commit")) for r in runs.values()]),
         "dirty_runs": sorted(n for n, r in runs.items() if (r.get("code") or {}).get("dirty") is not False),
     }
+
+
+def _steps_per_s(run: dict[str, Any]) -> float:
+    return run["global_step"] / run["wall_s"] if run["wall_s"] > 0 else 0.0
+
+
+def _cost_of(group: list[dict[str, Any]]) -> dict[str, Any]:
+    wall = [r["wall_s"] for r in group]
+    rss = [r["peak_rss_mb"] for r in group]
+    return {
+        "runs": len(group),
+        "wall_s_per_run": float(np.mean(wall)) if group else None,
+        "wall_s_total": float(np.sum(wall)),
+        # throughput over all the runs: env steps learned per second of ``learn`` (time-weighted)
+        "steps_per_s": float(sum(r["global_step"] for r in group) / sum(wall)) if sum(wall) > 0 else None,
+        "peak_rss_mb": float(np.mean(rss)) if group else None,
+        "peak_rss_mb_max": float(np.max(rss)) if group else None,
+    }
+
+
+def cost(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """Throughput and memory of each method: wall-clock of ``learn`` per run, env steps per second and
+    the run process's peak RSS (interpreter and libraries included), over all its finished runs and per
+    setting, with its wall-clock per run relative to TD3's on the same setting (``wall_vs_td3``)."""
+    out: dict[str, Any] = {}
+    for algo in plan.algos:
+        by_env = {env: _cost_of(plan.finished(runs, env, algo)) for env in plan.envs}
+        for env, c in by_env.items():
+            td3 = _cost_of(plan.finished(runs, env, "td3"))["wall_s_per_run"]
+            mine = c["wall_s_per_run"]
+            c["wall_vs_td3"] = mine / td3 if mine is not None and td3 else None
+        ratios = [c["wall_vs_td3"] for c in by_env.values() if c["wall_vs_td3"] is not None]
+        everything = [x for env in plan.envs for x in plan.finished(runs, env, algo)]
+        out[algo] = {
+            **_cost_of(everything),
+            "wall_vs_td3_min": min(ratios) if ratios else None,
+            "wall_vs_td3_max": max(ratios) if ratios else None,
+            "by_env": by_env,
+        }
+    return out
 
 
 def _count(items: list[str]) -> dict[str, int]:
@@ -173,7 +216,9 @@ def report(plan: Plan, out_dir: Path) -> dict[str, Any]:
     summary["per_run"] = {
         name: {
             "wall_s": r["wall_s"],
+            "steps_per_s": _steps_per_s(r),
             "peak_rss_mb": r["peak_rss_mb"],
+            "executor": r.get("executor", "local"),
             **{k: r["metrics"][k] for k in ("return_mean", "final_return", "steps_to_threshold", "reached")},
         }
         for name, r in sorted(runs.items())

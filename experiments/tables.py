@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +58,7 @@ def write_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
                 f"| {_fmt(h['median_H'], 1)} | {q['p10']:.0f} / {q['p50']:.0f} / {q['p90']:.0f} "
                 f"| {_fmt(h['retreat_fraction'], 2)} |"
             )
+    lines += ["", "## Cost per method", "", format_cost(summary, markdown=True)]
     lines += ["", "## Verdicts", "", format_verdicts(summary, markdown=True), ""]
     if summary["missing_runs"]:
         lines += [f"Missing runs ({len(summary['missing_runs'])}): " + ", ".join(summary["missing_runs"]), ""]
@@ -70,6 +72,37 @@ def write_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
     path = out_dir / "summary.md"
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def _num(value: float | None, digits: int = 0) -> str:
+    return "—" if value is None else f"{value:.{digits}f}"
+
+
+def format_cost(summary: dict[str, Any], markdown: bool = False) -> str:
+    """Each method's throughput and memory over its finished runs (``summary["cost"]``) as a table."""
+    head = ("method", "runs", "wall-clock s/run", "env steps/s", "peak RSS MB mean / max", "wall vs TD3")
+    rows = []
+    for algo, c in summary.get("cost", {}).items():
+        lo, hi = c["wall_vs_td3_min"], c["wall_vs_td3_max"]
+        ratio = "—" if lo is None else f"{lo:.2f}x" if abs(hi - lo) < 0.005 else f"{lo:.2f}-{hi:.2f}x"
+        rss = f"{_num(c['peak_rss_mb'])} / {_num(c['peak_rss_mb_max'])}"
+        rows.append(
+            (ALGO_LABELS.get(algo, algo), str(c["runs"]), _num(c["wall_s_per_run"], 1),
+             _num(c["steps_per_s"]), rss, ratio)
+        )  # fmt: skip
+    note = (
+        "wall-clock of learn per run (mean over all the method's runs, one run per core), env steps per "
+        "second over all its runs, peak RSS of each run's process; wall vs TD3: its mean wall-clock per "
+        "run over TD3's on the same setting, lowest-highest over the settings."
+    )
+    if markdown:
+        table = [f"| {' | '.join(head)} |", "|" + "---|" * len(head)]
+        table += [f"| {' | '.join(r)} |" for r in rows]
+        return "\n".join([note[0].upper() + note[1:], "", *table])
+    widths = [max(len(x) for x in col) for col in zip(head, *rows, strict=True)]
+    fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
+    lines = textwrap.wrap("Cost per method: " + note, width=110)
+    return "\n".join([*lines, fmt.format(*head), *(fmt.format(*r) for r in rows)])
 
 
 def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:

@@ -32,6 +32,42 @@ def _overall(comparisons: list[dict[str, Any]], higher_is_better: bool = True) -
     return f"{verdict} ({'; '.join(notes)})"
 
 
+BEST_OF = ("td3", "ddpg", "sac")  # issue #15's bar: level with the best of these on every setting
+
+
+def _level_with_best(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """AdaptiveH's final return against the best of TD3, DDPG and SAC (highest mean) on each setting.
+
+    Level means the difference's 95% interval is not wholly below zero (a tie or better); confirmed
+    when AdaptiveH is level on every setting, with every rival's runs there.
+    """
+    rivals = [a for a in BEST_OF if a in plan.algos]
+    comps = {}
+    for env in plan.envs:
+        means = {a: _vals(plan, runs, env, a, "final_return") for a in rivals}
+        have = {a: sum(v) / len(v) for a, v in means.items() if v}
+        if not have:
+            comps[f"{env}:best"] = {**bootstrap_diff([], []), "outcome": "missing"}
+            continue
+        best = max(have, key=have.__getitem__)
+        d = bootstrap_diff(_vals(plan, runs, env, "adaptiveh", "final_return"), means[best])
+        comps[f"{env}:{best}"] = {**d, "outcome": outcome(d, True), "best_of": rivals}
+    known = [c["outcome"] for c in comps.values() if c["outcome"] in ("better", "tie", "worse")]
+    level = sum(o != "worse" for o in known)
+    if not known:
+        verdict = "no data"
+    else:
+        verdict = "confirmed" if level == len(comps) else "partly confirmed" if level else "not confirmed"
+        verdict += f" (level or better on {level} of {len(comps)} settings"
+        verdict += f", {len(comps) - len(known)} lack runs)" if len(known) < len(comps) else ")"
+    return {
+        "metric": f"final_return, AdaptiveH minus the best (highest mean) of {', '.join(rivals)} per setting;"
+        " level: the 95% interval of the difference not wholly below zero",
+        "comparisons": comps,
+        "verdict": verdict,
+    }
+
+
 def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> dict[str, Any]:
     """The paper's claims, each tested per environment with bootstrap intervals of differences.
 
@@ -45,6 +81,7 @@ def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> 
         ("outperforms_td3_ddpg", "final_return", ("td3", "ddpg"), True),
         ("outperforms_td3_ddpg_over_run", "return_mean", ("td3", "ddpg"), True),
         ("faster_convergence", "steps_to_threshold", ("td3", "ddpg"), False),
+        ("outperforms_sac_ppo", "final_return", ("sac", "ppo"), True),
         ("outperforms_rkhs_fixed_h", "final_return", ("rkhs",), True),
     ):
         comps = {}
@@ -61,6 +98,7 @@ def verdicts(plan: Plan, runs: dict[str, dict[str, Any]], h: dict[str, Any]) -> 
             "comparisons": comps,
             "verdict": _overall(list(comps.values()), higher),
         }
+    out["level_with_best_off_policy"] = _level_with_best(plan, runs)
     slow, fast = h.get("cartpole_slow", {}), h.get("cartpole_fast", {})
     if slow.get("n") and fast.get("n"):
         comps = {}  # slow minus fast > 0: H narrows when the world changes faster

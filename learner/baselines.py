@@ -1,4 +1,4 @@
-"""TD3 and DDPG from stable-baselines3 behind the common agent protocol.
+"""TD3, DDPG, SAC and PPO from stable-baselines3 behind the common agent protocol.
 
 Why an adapter: the paper compares AdaptiveH with TD3 and DDPG on the same environments, seeds and
 step budgets, so the baselines must run through the same ``learn(total_steps, callback)`` and record
@@ -18,6 +18,22 @@ and equal budgets, applied to both algorithms and every environment:
 Unchanged on purpose (same tuning effort as the RKHS learners, i.e. none per environment): the
 replay buffer (2e5) is larger than every run, so TD3/DDPG replay transitions from all past worlds;
 the observation carries no hint of the hidden drift (gravity, noise bound, target speed).
+
+SAC and PPO (``SACConfig``, ``PPOConfig`` below) follow the same rule: the zoo's ``Pendulum-v1``
+values on every environment, SB3's defaults for what the zoo leaves out, and only what the protocol
+forces changed.
+
+* SAC: the zoo sets only lr 1e-3 (20k steps); the rest is SB3's: buffer 1e6, ``learning_starts``
+  100 (already below the 1 000 the TD3/DDPG rule caps it at, so kept), batch 256, tau 0.005,
+  gamma 0.99, one gradient step per env step (``train_freq=1``), entropy coefficient "auto"
+  (target -dim(A)), net [256, 256], no gSDE.
+* PPO: the zoo's tuned values: n_steps 1024, gae_lambda 0.95, gamma 0.9, n_epochs 10, ent_coef 0,
+  lr 1e-3, clip 0.2, gSDE with ``sde_sample_freq`` 4; SB3's batch 64, vf_coef 0.5, max_grad_norm 0.5,
+  net 64x64 (policy and value). Protocol change: ``n_envs`` 4 -> 1. Every method of the bench plays
+  one env whose seeded drift advances with its own steps; four copies would each see a quarter of
+  the drift per global step. n_steps stays 1024 per env, so the gradient steps per env sample
+  (n_epochs / batch) are the zoo's; a rollout cut by the step budget is not trained on (PPO trains
+  on whole rollouts only), and the zoo's 1e5-step budget is the bench's 20k like every method's.
 """
 
 from __future__ import annotations
@@ -28,20 +44,74 @@ import pickle
 import random
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import gymnasium as gym
 import numpy as np
 import torch
-from stable_baselines3 import DDPG, TD3
+from pydantic import Field, field_validator
+from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 
+from common.config import Section
 from learner.config import SB3Config
 from learner.protocol import EpisodeRecord, RunLog, StepCallback
 
-SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG}
+
+class SACConfig(Section):
+    """SAC settings: the zoo's Pendulum-v1 (lr 1e-3) and SB3's defaults (see the module docstring)."""
+
+    learning_rate: float = Field(1e-3, gt=0, lt=1)
+    gamma: float = Field(0.99, gt=0, lt=1)
+    buffer_size: int = Field(1_000_000, ge=1)
+    learning_starts: int = Field(100, ge=0)
+    batch_size: int = Field(256, ge=1)
+    tau: float = Field(0.005, gt=0, le=1)
+    train_freq: int = Field(1, ge=1)  # env steps between trainings
+    gradient_steps: int = Field(1, ge=-1)  # per training; -1: as many as env steps since the last one
+    ent_coef: Literal["auto"] | Annotated[float, Field(gt=0)] = "auto"
+    use_sde: bool = False
+    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [256, 256], min_length=1)
+    torch_threads: int = Field(1, ge=1)
+
+    @field_validator("gradient_steps")
+    @classmethod
+    def _some_steps(cls, value: int) -> int:
+        if value == 0:
+            raise ValueError("0 trains nothing: use -1 (as many as env steps) or >= 1")
+        return value
+
+
+class PPOConfig(Section):
+    """PPO settings: the zoo's tuned Pendulum-v1 values with one env (see the module docstring)."""
+
+    learning_rate: float = Field(1e-3, gt=0, lt=1)
+    n_steps: int = Field(1024, ge=2)  # env steps per rollout (one env)
+    batch_size: int = Field(64, ge=2)
+    n_epochs: int = Field(10, ge=1)
+    gamma: float = Field(0.9, gt=0, lt=1)
+    gae_lambda: float = Field(0.95, ge=0, le=1)
+    clip_range: float = Field(0.2, gt=0)
+    ent_coef: float = Field(0.0, ge=0)
+    vf_coef: float = Field(0.5, ge=0)
+    max_grad_norm: float = Field(0.5, gt=0)
+    use_sde: bool = True
+    sde_sample_freq: int = Field(4, ge=-1)
+    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [64, 64], min_length=1)
+    torch_threads: int = Field(1, ge=1)
+
+
+BaselineConfig = SB3Config | SACConfig | PPOConfig
+SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG, "sac": SAC, "ppo": PPO}
+SB3_CONFIGS: dict[str, type[SB3Config] | type[SACConfig] | type[PPOConfig]] = {
+    "td3": SB3Config,
+    "ddpg": SB3Config,
+    "sac": SACConfig,
+    "ppo": PPOConfig,
+}
+ON_POLICY = frozenset({"ppo"})  # trains on its own rollouts: no replay buffer
 _INFO_SKIP = {"episode", "terminal_observation", "TimeLimit.truncated", "final_observation", "final_info"}
 _FORMAT = 1
 
@@ -115,6 +185,12 @@ class _RecordCallback(BaseCallback):
         loc, model = self.locals, self.model
         dones = loc["dones"]
         model._update_info_buffer(loc["infos"], dones)
+        if self.agent.algo in ON_POLICY:
+            # The cut rollout is dropped (PPO trains on whole rollouts); the next learn() acts on the
+            # env's real current observation, as it would have had the rollout gone on.
+            model._last_obs = loc["new_obs"]
+            model._last_episode_starts = dones
+            return
         model._store_transition(
             loc["replay_buffer"], loc["buffer_actions"], loc["new_obs"], loc["rewards"], dones, loc["infos"]
         )
@@ -126,20 +202,21 @@ class _RecordCallback(BaseCallback):
 
 
 class SB3Agent:
-    """TD3 or DDPG (stable-baselines3) on one gymnasium env, honouring ``learner.protocol.Agent``."""
+    """TD3, DDPG, SAC or PPO (stable-baselines3) on one gymnasium env, honouring the ``Agent`` protocol."""
 
     def __init__(
-        self, algo: str, env: gym.Env, config: SB3Config | dict[str, Any] | None = None, seed: int = 0
+        self, algo: str, env: gym.Env, config: BaselineConfig | dict[str, Any] | None = None, seed: int = 0
     ) -> None:
         if algo not in SB3_CLASSES:
             raise ValueError(f"algo must be one of {sorted(SB3_CLASSES)}, got {algo!r}")
         if not isinstance(env.action_space, gym.spaces.Box):
-            raise ValueError("TD3/DDPG need a continuous (Box) action space")
+            raise ValueError("the SB3 baselines need a continuous (Box) action space")
         self.name = algo
         self.algo = algo
         self.env = env
         self.seed = int(seed)
-        self.config = config if isinstance(config, SB3Config) else SB3Config(**(config or {}))
+        cls = SB3_CONFIGS[algo]
+        self.config = config if isinstance(config, cls) else cls(**(dict(config or {})))
         self.log = RunLog()
         self._ep_return = 0.0
         self._ep_length = 0
@@ -148,6 +225,43 @@ class SB3Agent:
 
     def _build(self) -> BaseAlgorithm:
         cfg = self.config
+        common = {"seed": self.seed, "device": "cpu", "verbose": 0}
+        if isinstance(cfg, PPOConfig):
+            return PPO(
+                "MlpPolicy",
+                self.env,
+                learning_rate=cfg.learning_rate,
+                n_steps=cfg.n_steps,
+                batch_size=cfg.batch_size,
+                n_epochs=cfg.n_epochs,
+                gamma=cfg.gamma,
+                gae_lambda=cfg.gae_lambda,
+                clip_range=cfg.clip_range,
+                ent_coef=cfg.ent_coef,
+                vf_coef=cfg.vf_coef,
+                max_grad_norm=cfg.max_grad_norm,
+                use_sde=cfg.use_sde,
+                sde_sample_freq=cfg.sde_sample_freq,
+                policy_kwargs={"net_arch": list(cfg.net_arch)},
+                **common,
+            )
+        if isinstance(cfg, SACConfig):
+            return SAC(
+                "MlpPolicy",
+                self.env,
+                learning_rate=cfg.learning_rate,
+                buffer_size=cfg.buffer_size,
+                learning_starts=cfg.learning_starts,
+                batch_size=cfg.batch_size,
+                tau=cfg.tau,
+                gamma=cfg.gamma,
+                train_freq=cfg.train_freq,
+                gradient_steps=cfg.gradient_steps,
+                ent_coef=cfg.ent_coef,
+                use_sde=cfg.use_sde,
+                policy_kwargs={"net_arch": list(cfg.net_arch)},
+                **common,
+            )
         n_act = int(np.prod(self.env.action_space.shape))
         noise = NormalActionNoise(mean=np.zeros(n_act), sigma=cfg.noise_std * np.ones(n_act))
         return SB3_CLASSES[self.algo](
@@ -183,10 +297,10 @@ class SB3Agent:
         # The rollout cut at the budget was never trained on; give it its gradient steps now so that
         # an agent that learned N steps has trained on N steps whether or not it was split.
         model = self.model
-        if recorder.pending_train_steps and model.num_timesteps > model.learning_starts:
-            steps = (
-                recorder.pending_train_steps if self.config.gradient_steps < 0 else self.config.gradient_steps
-            )
+        off_policy = self.algo not in ON_POLICY
+        if off_policy and recorder.pending_train_steps and model.num_timesteps > model.learning_starts:
+            gradient_steps = self.config.gradient_steps  # type: ignore[union-attr]
+            steps = recorder.pending_train_steps if gradient_steps < 0 else gradient_steps
             model.train(gradient_steps=steps, batch_size=self.config.batch_size)
         self.log.global_step = int(self.model.num_timesteps)
         return self.log
@@ -196,12 +310,13 @@ class SB3Agent:
         return np.asarray(action)
 
     def save(self, path: str | Path) -> None:
-        """One zip: SB3 model (networks, optimisers, counters), replay buffer, RNG states, RunLog."""
+        """One zip: SB3 model (networks, optimisers, counters), replay buffer (off-policy), RNGs, RunLog."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         model_bytes, buffer_bytes = io.BytesIO(), io.BytesIO()
         self.model.save(model_bytes)
-        self.model.save_replay_buffer(buffer_bytes)
+        if self.algo not in ON_POLICY:
+            self.model.save_replay_buffer(buffer_bytes)
         rng = {"numpy": np.random.get_state(), "python": random.getstate(), "torch": torch.get_rng_state()}
         get_state = getattr(self.env.unwrapped, "get_state", None)
         rng["env"] = get_state() if callable(get_state) else None
@@ -230,11 +345,12 @@ class SB3Agent:
             model_bytes = zf.read("model.zip")
             buffer_bytes = zf.read("replay_buffer.pkl")
             rng = pickle.loads(zf.read("rng.pkl"))  # noqa: S301 - our own file format
-        self.config = SB3Config(**meta["config"])
+        self.config = SB3_CONFIGS[self.algo](**meta["config"])
         self.seed = int(meta["seed"])
         torch.set_num_threads(self.config.torch_threads)
         self.model = SB3_CLASSES[self.algo].load(io.BytesIO(model_bytes), env=self.env, device="cpu")
-        self.model.load_replay_buffer(io.BytesIO(buffer_bytes))
+        if self.algo not in ON_POLICY:
+            self.model.load_replay_buffer(io.BytesIO(buffer_bytes))
         self.model._last_obs = None  # force a fresh episode on this env at the next learn()
         np.random.set_state(rng["numpy"])
         random.setstate(rng["python"])

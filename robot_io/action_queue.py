@@ -21,6 +21,8 @@ class ChunkReport:
     dropped: int
     preempted_by: int = -1
     done: bool = False
+    session: str = ""  # the learner session whose chunk it is
+    chunk_stamp: float = 0.0  # the chunk's send time: with session and number, names the exact chunk
 
 
 @dataclass(frozen=True)
@@ -30,6 +32,7 @@ class Played:
     chunk_seq: int
     index: int
     action: np.ndarray
+    chunk_stamp: float = 0.0
 
 
 class ActionQueue:
@@ -37,27 +40,39 @@ class ActionQueue:
         self._lock = threading.Lock()
         self._actions: deque[np.ndarray] = deque()
         self._seq = -1
+        self._stamp = 0.0
+        self._session = ""
         self._executed = 0
         self._reports: list[ChunkReport] = []
 
-    def push(self, chunk_seq: int, actions: np.ndarray) -> bool:
+    def _report(
+        self, chunk_seq: int, executed: int, dropped: int, preempted_by: int = -1, done: bool = False
+    ) -> None:
+        report = ChunkReport(chunk_seq, executed, dropped, preempted_by, done, self._session, self._stamp)
+        self._reports.append(report)
+
+    def push(self, chunk_seq: int, actions: np.ndarray, stamp: float = 0.0) -> bool:
         """Queue a chunk; returns False (and ignores it) when it is not newer than the current one."""
         actions = np.asarray(actions, float).reshape(-1, 3)
         with self._lock:
             if chunk_seq <= self._seq:
                 return False
             if self._actions:
-                self._reports.append(
-                    ChunkReport(
-                        self._seq, self._executed, len(self._actions), preempted_by=chunk_seq, done=True
-                    )
-                )
+                self._report(self._seq, self._executed, len(self._actions), preempted_by=chunk_seq, done=True)
             self._actions = deque(actions)
-            self._seq = chunk_seq
+            self._seq, self._stamp = chunk_seq, stamp
             self._executed = 0
             if not self._actions:
-                self._reports.append(ChunkReport(chunk_seq, 0, 0, done=True))
+                self._report(chunk_seq, 0, 0, done=True)
             return True
+
+    def restart(self, session: str) -> int:
+        """A new session's numbering: drop what is queued (reported as dropped, preempted by no chunk)
+        and take chunks of ``session`` from number 0 on; returns the number of actions dropped."""
+        dropped = self.clear()
+        with self._lock:
+            self._session, self._seq, self._stamp, self._executed = session, -1, 0.0, 0
+        return dropped
 
     def take(self) -> Played | None:
         """Next action of the current chunk with its chunk and index, or None when the queue is empty."""
@@ -65,9 +80,9 @@ class ActionQueue:
             if not self._actions:
                 return None
             action = self._actions.popleft()
-            played = Played(self._seq, self._executed, action)
+            played = Played(self._seq, self._executed, action, self._stamp)
             self._executed += 1
-            self._reports.append(ChunkReport(self._seq, self._executed, 0, done=not self._actions))
+            self._report(self._seq, self._executed, 0, done=not self._actions)
             return played
 
     def pop(self) -> np.ndarray | None:
@@ -80,9 +95,7 @@ class ActionQueue:
         with self._lock:
             dropped = len(self._actions)
             if dropped:
-                self._reports.append(
-                    ChunkReport(self._seq, self._executed, dropped, preempted_by=reason_seq, done=True)
-                )
+                self._report(self._seq, self._executed, dropped, preempted_by=reason_seq, done=True)
             self._actions.clear()
             return dropped
 
@@ -95,6 +108,14 @@ class ActionQueue:
     @property
     def chunk_seq(self) -> int:
         return self._seq
+
+    @property
+    def session(self) -> str:
+        return self._session
+
+    @property
+    def chunk_stamp(self) -> float:
+        return self._stamp
 
     def __len__(self) -> int:
         with self._lock:

@@ -89,6 +89,9 @@ class RobotConfig(Section):
     # Longest chunk (plan) accepted: 25 s at 20 Hz, far beyond any learner's horizon (h_max 50); a longer
     # one is a learner bug and is refused whole, which also bounds the queue.
     max_plan_actions: int = Field(500, ge=1)
+    # A chunk numbered further ahead of its session's last one than this is refused (robot_io.command_gate):
+    # a learner numbers its chunks 1 by 1, so a big jump is a corrupted or forged number, not lost ones.
+    max_chunk_seq_gap: int = Field(32, ge=1, le=10_000)
     joint_margin_rad: float = Field(0.02, ge=0, lt=0.3)  # commands stay this far inside the URDF limits
     velocity_scale: float = Field(0.5, gt=0, le=1)  # fraction of the URDF joint velocity limits for the IK
     watchdog_timeout_s: float = Field(0.5, gt=0)

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
 from robot_io.action_queue import ActionQueue, ChunkReport
 from robot_io.backends import RobotBackend, make_backend
+from robot_io.command_gate import CommandGate, TakeoverRefused, Verdict
 from robot_io.config import RobotConfig
 from robot_io.description import RobotDescription
 from robot_io.ik import DifferentialIK
@@ -23,12 +23,9 @@ from robot_io.kinematics import Kinematics
 from robot_io.recovery import RecoveryPolicy
 from robot_io.safety import Safety, SafetyRecord
 
+REFUSAL_EVENT_EVERY_S = 1.0  # refused chunks past the first in this window are counted into the next event
 UNREACHABLE_M = 0.01  # IK ending this far from its goal with no progress means the goal is out of reach
 STEP_TOLERANCE = 1e-9  # relative: a step capped to exactly max_step_m by the sender is not "above" it
-
-Push = Literal["accepted", "bad_plan", "refused", "stale"]
-"""What became of a chunk: queued; refused whole as a bad plan (the arm holds); refused because the arm
-is held (e-stop, pause, lost peer); or ignored as not newer than the current chunk."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +41,9 @@ class ArmState:
     tick: int = 0  # control ticks so far (a state read between ticks repeats the last one's)
     played_chunk: int = -1  # the chunk and index of the action this tick took from the queue; -1: none
     played_index: int = -1
+    session: str = ""  # the learner session the arm obeys; chunk numbers above are that session's
+    chunk_stamp: float = 0.0  # the send times of chunk_seq and played_chunk (with the numbers: exact)
+    played_stamp: float = 0.0
 
 
 @dataclass
@@ -64,6 +64,9 @@ class RobotController:
             config.ik, self.kin.description, config.velocity_scale, config.joint_margin_rad, self.home
         )
         self.queue = ActionQueue()
+        self.gate = CommandGate(config.max_chunk_seq_gap)
+        self._last_refusal_event = -np.inf
+        self._refusals_unreported = 0
         self.safety = Safety(config.workspace, config.watchdog_timeout_s)
         self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
@@ -73,7 +76,7 @@ class RobotController:
         self._unreachable = False
         self._braked = False
         self.ticks = 0
-        self._played = (-1, -1)  # (chunk, index) taken by the last tick
+        self._played = (-1, -1, 0.0)  # (chunk, index, chunk stamp) taken by the last tick
 
     # -- called from other threads -------------------------------------------------------------------
     def plan_problem(self, actions: np.ndarray) -> str | None:
@@ -108,19 +111,74 @@ class RobotController:
             dropped = self.queue.clear()
             self.safety.report(kind, f"{detail}; refused whole, arm holds (dropped {dropped} queued)")
 
-    def push_chunk(self, chunk_seq: int, actions: np.ndarray, now: float) -> Push:
-        """Queue a chunk (preempting the rest of the current one); refused while held, bar the watchdog."""
+    def push_chunk(
+        self, session: str, chunk_seq: int, actions: np.ndarray, now: float, stamp: float = 0.0
+    ) -> Verdict:
+        """Queue a chunk of the obeyed session (preempting the rest of the current one). Refused, and
+        reported as a ``foreign_command`` safety event, when the gate says it is not that session's next
+        (``robot_io.command_gate``); refused whole as a bad plan; refused while held, bar the watchdog."""
+        with self._lock:
+            refusal = self.gate.check(session, chunk_seq)
+            if refusal is not None:
+                self._report_refusal(self.gate.describe(refusal, session, chunk_seq), now)
+                return refusal
         problem = self.plan_problem(actions)
         if problem is not None:
             self.refuse_plan("bad_plan", f"chunk {chunk_seq}: {problem}")
             return "bad_plan"
         with self._lock:
             if not self.safety.accepts_commands():
-                return "refused"
-            if not self.queue.push(chunk_seq, actions):
+                return "held"
+            if self.gate.check(session, chunk_seq) is not None:  # a newer one got in while unlocked
                 return "stale"
+            if not self.queue.push(chunk_seq, actions, stamp):  # the gate admits only newer numbers
+                raise AssertionError(f"queue refused chunk {chunk_seq} after {self.queue.chunk_seq}")
+            self.gate.admitted(chunk_seq)
             self.safety.command_received(now)
             return "accepted"
+
+    def report_refusal(self, detail: str, now: float) -> None:
+        """A command not obeyed (stale, foreign, forged): one ``foreign_command`` event per window, so a
+        flood of forgeries does not flood the operator (or the recording); the next event says how many
+        were refused meanwhile."""
+        with self._lock:
+            self._report_refusal(detail, now)
+
+    def _report_refusal(self, detail: str, now: float) -> None:
+        if now - self._last_refusal_event < REFUSAL_EVENT_EVERY_S:
+            self._refusals_unreported += 1
+            return
+        if self._refusals_unreported:
+            detail += f" (and {self._refusals_unreported} more refused since the last report)"
+        self.safety.report("foreign_command", detail)
+        self._last_refusal_event, self._refusals_unreported = now, 0
+
+    def learner_alive(self, session: str, alive: bool) -> None:
+        """A learner session's liveliness token came or went (only a live session may take over)."""
+        with self._lock:
+            self.gate.alive(session, alive)
+
+    def obey(self, session: str) -> None:
+        """In-process use (benchmarks, tests): the caller is the learner, alive by construction."""
+        self.learner_alive(session, True)
+        self.take_over(session)
+
+    def take_over(self, session: str) -> None:
+        """Obey ``session`` from now on (its chunks numbered from 0); the rest of the previous session's
+        chunk is dropped. Raises ``TakeoverRefused`` for a session without a live token."""
+        with self._lock:
+            try:
+                previous = self.gate.take_over(session)
+            except TakeoverRefused as exc:
+                self.safety.report("foreign_command", f"reset refused: {exc}")
+                raise
+            if previous == session:
+                return
+            dropped = self.queue.restart(session)
+            was = repr(previous[:16]) if previous else "none"
+            self.safety.report(
+                "takeover", f"learner session {session[:16]!r} took over (was {was}; dropped {dropped})"
+            )
 
     def operator(self, command: str, jog: np.ndarray | None = None) -> None:
         """pause | resume | estop | release | jog, from the monitor; e-stop also acts at once."""
@@ -159,6 +217,9 @@ class RobotController:
             tick=self.ticks,
             played_chunk=self._played[0],
             played_index=self._played[1],
+            session=self.queue.session,
+            chunk_stamp=self.queue.chunk_stamp,
+            played_stamp=self._played[2],
         )
 
     def _safety_pass(self, now: float) -> bool:
@@ -216,7 +277,9 @@ class RobotController:
             if played is not None:
                 self.safety.command_received(now)
             # Taken under the same lock as the pop: a chunk arriving later does not change what ran.
-            self._played = (played.chunk_seq, played.index) if played is not None else (-1, -1)
+            self._played = (
+                (played.chunk_seq, played.index, played.chunk_stamp) if played is not None else (-1, -1, 0.0)
+            )
             self.ticks += 1
             paused = self.safety.mode == "paused"
         applied = None
@@ -284,7 +347,7 @@ class RobotController:
         """Home pose and (in simulation) a new target motion; clears the queue and the watchdog."""
         with self._lock:
             self.queue.clear()
-            self._played = (-1, -1)
+            self._played = (-1, -1, 0.0)
             self.safety.last_command = None
             self.safety.clear("watchdog", "reset")
         self.backend.reset(self.home, seed)

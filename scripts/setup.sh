@@ -11,4 +11,12 @@ fi
 python -m pip install -q --upgrade pip
 # CPU torch first (a local wheel here; a range would pull a multi-GB CUDA build).
 python -m pip install -q "torch==2.13.0"
-python -m pip install -q -e ".[dev,baselines,franky-sim]"  # franky-sim: the Franka path is tested against franky-sim
+# franky-sim: the Franka path is tested against franky-sim. realsense: the RealSense backend is tested
+# on the SDK's software_device (pyrealsense2 loads Debian's libusb-1.0-0: scripts/test.sh installs it);
+# PyPI has pyrealsense2 wheels for x86_64 only, elsewhere that test is skipped.
+# ray: the bench's Ray executor is tested on a local 2-CPU instance (about 240 MB, 15 s to install).
+extras="dev,baselines,franky-sim,ray"
+if [ "$(uname -m)" = x86_64 ]; then
+  extras="$extras,realsense"
+fi
+python -m pip install -q -e ".[$extras]"

@@ -57,11 +57,15 @@ class BusProbe:
         raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
-
-def send_chunk(bus: Bus, seq: int, actions: Any) -> None:
-    """Put an ActionChunk with an explicit ``seq`` straight on the wire (what a learner, or a stranger,
-    sends), bypassing the publisher's own numbering."""
-    msg = m.ActionChunk(seq=seq, actions=np.asarray(actions, float).ravel())
+def send_chunk(bus: Bus, seq: int, actions: Any, session: str, predicted_ee: Any = ()) -> None:
+    """Put an ActionChunk of ``session`` with an explicit ``seq`` straight on the wire (what a learner,
+    or a stranger copying its session id, sends), bypassing the publisher's own numbering."""
+    msg = m.ActionChunk(
+        seq=seq,
+        actions=np.asarray(actions, float).ravel(),
+        session=session,
+        predicted_ee=np.asarray(predicted_ee, float).ravel(),
+    )
     bus.session.put(bus.key(m.CMD_CHUNK), msg.SerializeToString())
 
 

@@ -4,6 +4,7 @@ experiment (``experiments.plans``)."""
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 from pathlib import Path
 
@@ -13,15 +14,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     kinds = bench.add_subparsers(dest="bench", required=True)
     paper = kinds.add_parser(
         "paper",
-        help="AdaptiveH vs TD3, DDPG, RKHS fixed-H: learning curves, H window, slow vs fast, verdicts",
-        description="Runs every unfinished run of the plan (one process per run, resumable), then writes "
-        "summary.json and the PNG figures from all finished runs.",
+        help="AdaptiveH vs TD3, DDPG, SAC, PPO, RKHS fixed-H: learning curves, H window, slow vs fast, "
+        "verdicts, cost per method",
+        description="Runs every unfinished run of the plan (one process per run, resumable; locally or as "
+        "Ray tasks on a cluster), then writes summary.json and the PNG figures from all finished runs and "
+        "prints the verdicts and each method's wall-clock, throughput and peak memory.",
     )
-    paper.add_argument("--quick", action="store_true", help="2 seeds, 4k steps (2k on Reach): < 20 min")
+    paper.add_argument("--quick", action="store_true", help="2 seeds, 4k steps (2k on Reach): a smoke run")
     paper.add_argument(
         "--out", type=Path, default=None, help="results/paper (results/paper_quick if --quick)"
     )
-    paper.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs in parallel")
+    _executor_args(paper)
     paper.add_argument("--seeds", type=int, default=None, help="override the number of seeds")
     paper.add_argument("--steps", type=int, default=None, help="override the step budget of every env")
     paper.add_argument("--envs", nargs="+", default=None, help="subset of envs (default: all)")
@@ -43,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     plans.add_argument(
         "--out", type=Path, default=None, help="results/plans (results/plans_quick if --quick)"
     )
-    plans.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs in parallel")
+    _executor_args(plans)
     plans.add_argument("--seeds", type=int, default=None, help="override the number of seeds")
     plans.add_argument("--latency-seeds", type=int, default=None, help="seeds of the latency sweep")
     plans.add_argument("--steps", type=int, default=None, help="override the step budget of every setting")
@@ -61,12 +64,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     plans.set_defaults(func=_plans)
 
 
+def _executor_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help=f"runs in parallel (local: default {os.cpu_count() or 1}, the CPU count; ray: tasks in "
+        "flight, default all pending, queued on the cluster's CPUs)",
+    )
+    parser.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="local: a process pool on this machine (default); ray: each run a Ray task on the cluster "
+        "at --ray-address (needs the 'ray' extra); run files are written here either way",
+    )
+    parser.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="the Ray cluster: HOST:PORT of its head (GCS) or ray://HOST:10001 (Ray Client); "
+        "default RAY_ADDRESS, else a new local Ray instance",
+    )
+
+
+def _check_executor(args: argparse.Namespace) -> None:
+    if args.jobs is not None and args.jobs < 1:
+        raise SystemExit("--jobs must be >= 1")
+    if args.ray_address is not None and args.executor != "ray":
+        raise SystemExit("--ray-address needs --executor ray")
+    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
+        raise SystemExit("--executor ray needs Ray: pip install -e '.[ray]'")
+
+
 def _paper(args: argparse.Namespace) -> int:
     from experiments.paper import main_paper
-    from experiments.tables import format_verdicts
+    from experiments.tables import format_cost, format_verdicts
 
-    if args.jobs < 1:
-        raise SystemExit("--jobs must be >= 1")
+    _check_executor(args)
     out = args.out or Path("results/paper_quick" if args.quick else "results/paper")
     summary = main_paper(
         quick=args.quick,
@@ -78,8 +113,11 @@ def _paper(args: argparse.Namespace) -> int:
         algos=args.algos,
         report_only=args.report_only,
         progress=not args.no_progress,
+        executor=args.executor,
+        ray_address=args.ray_address,
     )
     print(format_verdicts(summary))
+    print(format_cost(summary))
     print(f"figures and summary.json in {out}; missing runs: {len(summary['missing_runs'])}")
     return 1 if summary["failed_runs"] else 0
 
@@ -88,8 +126,7 @@ def _plans(args: argparse.Namespace) -> int:
     from experiments.plans import main_plans
     from experiments.tables import format_verdicts
 
-    if args.jobs < 1:
-        raise SystemExit("--jobs must be >= 1")
+    _check_executor(args)
     out = args.out or Path("results/plans_quick" if args.quick else "results/plans")
     summary = main_plans(
         quick=args.quick,
@@ -102,6 +139,8 @@ def _plans(args: argparse.Namespace) -> int:
         report_only=args.report_only,
         progress=not args.no_progress,
         paper_dir=args.paper_dir,
+        executor=args.executor,
+        ray_address=args.ray_address,
     )
     print(format_verdicts(summary))
     print(f"figures, summary.json and summary.md in {out}; missing runs: {len(summary['missing_runs'])}")

@@ -25,13 +25,15 @@ def run(args: argparse.Namespace) -> int:
     from deploy.foxglove.live import start_live
     from deploy.monitor.server import MonitorConfig, MonitorServer
     from deploy.node import run_until_stopped
+    from deploy.signing import mac_key
     from deploy.transport import Bus, open_session
 
     setup_logging(args.log_level)
     cfg = load_stack_config(args.config, monitor={"port": args.port, "foxglove_port": args.foxglove_port})
     mcfg = cfg.monitor or MonitorConfig()
-    bus = Bus(open_session(cfg.zenoh), cfg.name)
-    server = MonitorServer(bus, mcfg, operator_token(args) or None)  # else random
+    token = operator_token(args)
+    bus = Bus(open_session(cfg.zenoh), cfg.name, mac_key(token))  # signs controls with the stack's key
+    server = MonitorServer(bus, mcfg, token or None)  # else random: its controls are not the stack's
     setup = SceneSetup.from_stack(cfg)
     live = start_live(bus.session, cfg.name, setup, mcfg.host, mcfg.foxglove_port, cfg.recording.exclude)
     print(f"monitor: {server.url}?token={server.token}", flush=True)

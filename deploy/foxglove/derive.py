@@ -306,7 +306,9 @@ class Deriver:
         self.executed: deque[list[float]] = deque(maxlen=path_len)
         self.target: m.Target | None = None
         self.ee: list[float] = []
-        self.plans: dict[int, tuple[bool, list[list[float]]]] = {}  # seq -> (starts at the ee, points)
+        # (session, seq) -> (starts at the ee, points), the newest PLANS_KEPT in arrival order
+        self.plans: dict[tuple[str, int], tuple[bool, list[list[float]]]] = {}
+        self.session = ""  # the learner session the arm obeys (its chunks are the ones drawn)
         self.plan: list[list[float]] = []
         self.abandoned: list[list[float]] = []
         self._states = 0
@@ -356,6 +358,7 @@ class Deriver:
             model = self.robot_model(s.stamp)
             out += [model] if model is not None else []
         self.ee = list(s.ee_pos)
+        self.session = s.session
         if self._states % 2 == 0:
             self.executed.append(self.ee)
         tfs = [transform(BASE, EE, s.ee_pos, IDENTITY, s.stamp)]
@@ -385,19 +388,21 @@ class Deriver:
         return [_proto(self.topic(TF), tf)] if tf is not None else []
 
     def _chunk(self, c: m.ActionChunk) -> list[Derived]:
+        if self.session and c.session != self.session:
+            return []  # refused by robot-io (not the obeyed session): nothing the arm will do
         if not c.predicted_ee:
             self.plan = []  # a chunk without a prediction: no plan path to draw
             return []
         points = np.asarray(c.predicted_ee, float).reshape(-1, 3).tolist()
         self.plan = ([self.ee] if self.ee else []) + points
-        self.plans[c.seq] = (bool(self.ee), self.plan)
-        for old in sorted(self.plans)[: -self.PLANS_KEPT]:
-            del self.plans[old]
+        self.plans[(c.session, c.seq)] = (bool(self.ee), self.plan)
+        while len(self.plans) > self.PLANS_KEPT:
+            del self.plans[next(iter(self.plans))]
         return [self.scene(c.stamp)]
 
     def _status(self, s: m.ChunkStatus) -> list[Derived]:
         """A plan cut short by a newer one: keep the rest it did not play, from where the arm stopped."""
-        entry = self.plans.get(s.chunk_seq)
+        entry = self.plans.get((s.session, s.chunk_seq))
         if entry is None or not s.dropped or s.preempted_by < 0:
             return []
         has_start, points = entry  # points[0] is the arm at arrival when has_start; then one per action

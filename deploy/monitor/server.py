@@ -8,7 +8,8 @@ queued counts, so the page can draw planned against executed and the abandoned r
 stdlib ``http.server`` on 127.0.0.1; the page polls ``/api/state`` (JSON) and ``/api/image.jpg``
 (the vision node's annotated JPEG) a few times a second. ``POST /api/control`` turns a button or a jog
 key into a ``Control`` message; it needs the token printed at start (``X-Token`` header or ``token``
-field), and the robot and learner check the same token again.
+field). The message carries no token: the bus signs it with the token's key (``deploy.signing``), and
+the robot and learner obey only a signed, fresh request (an e-stop from anyone).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from pydantic import Field
 
 from common.config import Section
 from deploy import messages as m
+from deploy.learner_session import REFUSALS
 from deploy.node import Node
 from deploy.transport import Bus
 
@@ -73,9 +75,12 @@ class MonitorState:
             "dropped_at_retreat": 0,
             "safety": 0,
             "messages": 0,
+            "refused": 0,  # chunks robot-io refused: stale, foreign (not the obeyed session), a seq jump
         }
+        self.session = ""  # the learner session the arm obeys (from state)
         self._n_state = 0
-        self.plans: dict[int, dict[str, Any]] = {}  # chunk seq -> plan, the newest PLANS_KEPT
+        # (session, chunk seq) -> plan, the newest PLANS_KEPT in arrival order
+        self.plans: dict[tuple[str, int], dict[str, Any]] = {}
         self._retreat_segments: deque[int] = deque(maxlen=50)  # segments that ended in a retreat
         bus.subscribe(m.STATE, self._state)
         bus.subscribe(m.TARGET, self._target)
@@ -94,13 +99,15 @@ class MonitorState:
                 "ee": list(s.ee_pos),
                 "chunk_seq": s.chunk_seq,
                 "queue_len": s.queue_len,
+                "session": s.session,
                 "joint_speed": max((abs(v) for v in s.dq), default=0.0),  # rad/s, the hold check
                 "stamp": s.stamp,
             }
+            self.session = s.session
             self._n_state += 1
             if self._n_state % 2 == 0:
                 self.ee.append([round(x, 4) for x in s.ee_pos])
-            plan = self.plans.get(s.played_chunk)
+            plan = self.plans.get((s.session, s.played_chunk))
             if plan is not None and s.tick > plan["last_tick"]:  # a state between ticks repeats its tick
                 plan["path"].append([round(x, 4) for x in s.ee_pos])
                 plan["executed"] = s.played_index + 1
@@ -125,6 +132,8 @@ class MonitorState:
 
     def _chunk(self, c: m.ActionChunk) -> None:
         with self.lock:
+            if self.session and c.session != self.session:
+                return  # not the session the arm obeys: robot-io refuses it (shown with its status)
             self.current_chunk = {
                 "chunk_seq": c.seq,
                 "n": len(c.actions) // 3,
@@ -139,7 +148,8 @@ class MonitorState:
         """A new plan: its predicted path, starting where the arm is now (caller holds the lock)."""
         start = [round(x, 4) for x in self.robot.get("ee", [])]
         planned = [[round(x, 4) for x in c.predicted_ee[i : i + 3]] for i in range(0, len(c.predicted_ee), 3)]
-        self.plans[c.seq] = {
+        self.plans[(c.session, c.seq)] = {
+            "session": c.session,
             "chunk_seq": c.seq,
             "segment": c.segment,
             "n": len(c.actions) // 3,
@@ -152,15 +162,22 @@ class MonitorState:
             "by_retreat": False,
             "done": False,
         }
-        for old in sorted(self.plans)[:-PLANS_KEPT]:
-            del self.plans[old]
+        while len(self.plans) > PLANS_KEPT:
+            del self.plans[next(iter(self.plans))]
 
     def _status(self, s: m.ChunkStatus) -> None:
+        verdict = m.label(s, "verdict")
         with self.lock:
+            if verdict in REFUSALS:
+                self.counts["refused"] += 1
+                self.chunks.append(
+                    {"chunk_seq": s.chunk_seq, "executed": 0, "dropped": 0, "refused": verdict}
+                )
+                return
             self.counts["dropped"] += s.dropped
             if self.current_chunk.get("chunk_seq") == s.chunk_seq:
                 self.current_chunk.update(executed=s.executed, dropped=s.dropped)
-            plan, by = self.plans.get(s.chunk_seq), self.plans.get(s.preempted_by)
+            plan, by = self.plans.get((s.session, s.chunk_seq)), self.plans.get((s.session, s.preempted_by))
             if plan is not None:
                 plan.update(executed=s.executed, dropped=s.dropped, done=s.done)
                 if s.dropped and s.preempted_by >= 0:
@@ -214,6 +231,7 @@ class MonitorState:
                     {k: v for k, v in p.items() if k != "last_tick"}
                     | {"queued": max(0, p["n"] - p["executed"] - p["dropped"])}
                     for p in sorted(self.plans.values(), key=lambda p: p["chunk_seq"])
+                    if p["session"] == self.session or not self.session
                 ],
                 "image": bool(self.image),
                 "detected": self.image_detected,
@@ -280,6 +298,7 @@ class MonitorServer(Node):
     def control(self, command: str, jog: Any, token: str) -> tuple[int, dict[str, Any]]:
         """Validate and publish one operator request; returns (HTTP code, reply)."""
         if not secrets.compare_digest(str(token), self.token):
+            log.warning("control %r refused: wrong or missing token", command[:40])
             return 403, {"ok": False, "error": "wrong or missing token"}
         try:
             value = m.enum(m.Control, "command", command)
@@ -288,7 +307,7 @@ class MonitorServer(Node):
         vec = [0.0, 0.0, 0.0] if jog is None else [float(x) for x in jog]
         if len(vec) != 3 or not all(math.isfinite(x) for x in vec):
             raise ValueError("jog must have 3 finite values")
-        self._pub_control(m.Control(command=value, jog=vec, token=self.token))
+        self._pub_control(m.Control(command=value, jog=vec))  # signed by the bus with the token's key
         self.controls.append(command)
         return 200, {"ok": True, "command": command, "at": time.time()}
 

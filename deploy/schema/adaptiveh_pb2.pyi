@@ -13,7 +13,7 @@ LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
 length_multiple: _descriptor.FieldDescriptor
 
 class RobotState(_message.Message):
-    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index")
+    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index", "session", "chunk_stamp", "played_stamp", "mac")
     class Mode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         MODE_UNSPECIFIED: _ClassVar[RobotState.Mode]
@@ -40,6 +40,10 @@ class RobotState(_message.Message):
     TICK_FIELD_NUMBER: _ClassVar[int]
     PLAYED_CHUNK_FIELD_NUMBER: _ClassVar[int]
     PLAYED_INDEX_FIELD_NUMBER: _ClassVar[int]
+    SESSION_FIELD_NUMBER: _ClassVar[int]
+    CHUNK_STAMP_FIELD_NUMBER: _ClassVar[int]
+    PLAYED_STAMP_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     q: _containers.RepeatedScalarFieldContainer[float]
@@ -52,7 +56,11 @@ class RobotState(_message.Message):
     tick: int
     played_chunk: int
     played_index: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ...) -> None: ...
+    session: str
+    chunk_stamp: float
+    played_stamp: float
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Target(_message.Message):
     __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status")
@@ -121,21 +129,43 @@ class AnnotatedImage(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., jpeg: _Optional[bytes] = ..., detected: _Optional[bool] = ...) -> None: ...
 
 class ActionChunk(_message.Message):
-    __slots__ = ("seq", "stamp", "actions", "segment", "predicted_ee")
+    __slots__ = ("seq", "stamp", "actions", "segment", "predicted_ee", "session", "mac")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     ACTIONS_FIELD_NUMBER: _ClassVar[int]
     SEGMENT_FIELD_NUMBER: _ClassVar[int]
     PREDICTED_EE_FIELD_NUMBER: _ClassVar[int]
+    SESSION_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     actions: _containers.RepeatedScalarFieldContainer[float]
     segment: int
     predicted_ee: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ..., predicted_ee: _Optional[_Iterable[float]] = ...) -> None: ...
+    session: str
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ..., predicted_ee: _Optional[_Iterable[float]] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class ChunkStatus(_message.Message):
-    __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done")
+    __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done", "session", "verdict", "chunk_stamp", "mac")
+    class Verdict(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        VERDICT_UNSPECIFIED: _ClassVar[ChunkStatus.Verdict]
+        ACCEPTED: _ClassVar[ChunkStatus.Verdict]
+        HELD: _ClassVar[ChunkStatus.Verdict]
+        BAD_PLAN: _ClassVar[ChunkStatus.Verdict]
+        STALE: _ClassVar[ChunkStatus.Verdict]
+        FOREIGN: _ClassVar[ChunkStatus.Verdict]
+        SEQ_JUMP: _ClassVar[ChunkStatus.Verdict]
+        FORGED: _ClassVar[ChunkStatus.Verdict]
+    VERDICT_UNSPECIFIED: ChunkStatus.Verdict
+    ACCEPTED: ChunkStatus.Verdict
+    HELD: ChunkStatus.Verdict
+    BAD_PLAN: ChunkStatus.Verdict
+    STALE: ChunkStatus.Verdict
+    FOREIGN: ChunkStatus.Verdict
+    SEQ_JUMP: ChunkStatus.Verdict
+    FORGED: ChunkStatus.Verdict
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     CHUNK_SEQ_FIELD_NUMBER: _ClassVar[int]
@@ -143,6 +173,10 @@ class ChunkStatus(_message.Message):
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     PREEMPTED_BY_FIELD_NUMBER: _ClassVar[int]
     DONE_FIELD_NUMBER: _ClassVar[int]
+    SESSION_FIELD_NUMBER: _ClassVar[int]
+    VERDICT_FIELD_NUMBER: _ClassVar[int]
+    CHUNK_STAMP_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     chunk_seq: int
@@ -150,7 +184,11 @@ class ChunkStatus(_message.Message):
     dropped: int
     preempted_by: int
     done: bool
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ...) -> None: ...
+    session: str
+    verdict: ChunkStatus.Verdict
+    chunk_stamp: float
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ..., session: _Optional[str] = ..., verdict: _Optional[_Union[ChunkStatus.Verdict, str]] = ..., chunk_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class RetreatEvent(_message.Message):
     __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step")
@@ -201,6 +239,8 @@ class SafetyEvent(_message.Message):
         BAD_FRAME: _ClassVar[SafetyEvent.Kind]
         CAMERA_ERROR: _ClassVar[SafetyEvent.Kind]
         BAD_PLAN: _ClassVar[SafetyEvent.Kind]
+        FOREIGN_COMMAND: _ClassVar[SafetyEvent.Kind]
+        TAKEOVER: _ClassVar[SafetyEvent.Kind]
     KIND_UNSPECIFIED: SafetyEvent.Kind
     WORKSPACE: SafetyEvent.Kind
     JOINT_LIMIT: SafetyEvent.Kind
@@ -216,6 +256,8 @@ class SafetyEvent(_message.Message):
     BAD_FRAME: SafetyEvent.Kind
     CAMERA_ERROR: SafetyEvent.Kind
     BAD_PLAN: SafetyEvent.Kind
+    FOREIGN_COMMAND: SafetyEvent.Kind
+    TAKEOVER: SafetyEvent.Kind
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
@@ -229,7 +271,7 @@ class SafetyEvent(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., kind: _Optional[_Union[SafetyEvent.Kind, str]] = ..., detail: _Optional[str] = ..., held: _Optional[bool] = ...) -> None: ...
 
 class LearnerTelemetry(_message.Message):
-    __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo")
+    __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo", "mac")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
@@ -238,6 +280,7 @@ class LearnerTelemetry(_message.Message):
     SUCCESS_FIELD_NUMBER: _ClassVar[int]
     PAUSED_FIELD_NUMBER: _ClassVar[int]
     ALGO_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     global_step: int
@@ -246,10 +289,11 @@ class LearnerTelemetry(_message.Message):
     success: bool
     paused: bool
     algo: str
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ...) -> None: ...
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Control(_message.Message):
-    __slots__ = ("seq", "stamp", "command", "jog", "token")
+    __slots__ = ("seq", "stamp", "command", "jog", "mac")
     class Command(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         COMMAND_UNSPECIFIED: _ClassVar[Control.Command]
@@ -268,23 +312,27 @@ class Control(_message.Message):
     STAMP_FIELD_NUMBER: _ClassVar[int]
     COMMAND_FIELD_NUMBER: _ClassVar[int]
     JOG_FIELD_NUMBER: _ClassVar[int]
-    TOKEN_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     command: Control.Command
     jog: _containers.RepeatedScalarFieldContainer[float]
-    token: str
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., token: _Optional[str] = ...) -> None: ...
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class ResetRequest(_message.Message):
-    __slots__ = ("seq", "stamp", "seed")
+    __slots__ = ("seq", "stamp", "seed", "session", "mac")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     SEED_FIELD_NUMBER: _ClassVar[int]
+    SESSION_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     seed: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., seed: _Optional[int] = ...) -> None: ...
+    session: str
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., seed: _Optional[int] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class ResetReply(_message.Message):
     __slots__ = ("seq", "stamp", "ok", "detail", "state")

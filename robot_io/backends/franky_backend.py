@@ -11,20 +11,32 @@ current position, velocity and acceleration, so the commanded motion is jerk-lim
   rest by itself, one period's travel further on (clipped to the joint limits).
 - ``rest``: the target alone, approached to a stop: stop-and-go at the control rate.
 
-``hold()`` preempts with a braking waypoint at the arm's full dynamic limits (jerk-limited, so a hold
-never trips a discontinuity reflex) and keeps commanding that position until the next command. A
+``hold()`` preempts with a braking waypoint at ``HOLD_DYNAMICS`` of the arm's dynamic limits
+(``JOINT_DYNAMICS_LIMITS``, set at connect; jerk-limited, with a margin for lost cycles, so a hold
+does not trip a discontinuity reflex) and keeps commanding that position until the next command. A
 reflex, a rejected command or a lost connection ends franky's motion with an exception, which
 ``fault()`` reports as a ``Fault`` until ``recover()`` runs
 libfranka's automatic error recovery, or reconnects when the connection was lost (a dead libfranka
 connection cannot be reused). Connecting verifies the arm against ``robot.model``
 (``franky_model.verify_model``). franky is imported here only, so the stack runs without it.
+
+Scheduling: libfranka raises the thread that *constructs* its Robot to the highest SCHED_FIFO priority
+(whenever the OS allows it; ``realtime: enforce`` only makes a refusal fatal), expecting to run the 1 kHz
+loop from it. franky runs that loop in a thread of its own, started by whichever thread calls ``move``
+and inheriting that thread's scheduling. So the connecting thread is put back as it was (otherwise
+robot-io's Python and Zenoh threads, started from it later, ran at FIFO 99, above and beside the 1 kHz
+loop: measured on franka-sim, lost cycles and discontinuity reflexes), and the priority libfranka
+obtained is held only around ``move``, so a 1 kHz thread it starts inherits it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
+import os
 import time
+from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
@@ -43,7 +55,36 @@ from robot_io.description import RobotDescription
 log = logging.getLogger(__name__)
 
 CONNECTION_LOST = "connection_lost"
-BRAKE_FRACTION = 0.8  # of the joint acceleration limits, for where a hold stops
+# The joint acceleration (rad/s^2) and jerk (rad/s^3) limits of each arm's FCI: a commanded motion past
+# them ends in a *_discontinuity reflex. franky starts with the Panda's (libfranka's FER rate limits)
+# whatever arm it connects to; the FR3's are lower on most joints (10 and 5000 on every joint, its
+# datasheet's and what franka-sim enforces). Set at connect from robot.model.
+JOINT_DYNAMICS_LIMITS = {
+    "panda": (
+        (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
+        (7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0),
+    ),
+    "fr3": ((10.0,) * 7, (5000.0,) * 7),
+}
+# A hold brakes at these fractions of those limits (velocity, acceleration, jerk). The FCI judges the
+# commands it receives by differencing them (sent as float32: ~0.5 rad/s^2 of rounding at q ~ 2 rad),
+# and a command that misses its 1 ms cycle is replaced by a constant-acceleration extrapolation, so the
+# next one reads up to about twice the planned jerk: braking at 0.9 of the FR3's jerk limit tripped
+# jerk reflexes on franka-sim after single lost cycles. The jerk is franka.dynamics' default; the
+# acceleration stays high so that a hold still stops within about two control periods.
+HOLD_DYNAMICS = (1.0, 0.8, 0.3)
+
+
+def _scheduling() -> tuple[int, int] | None:
+    """This thread's scheduling policy and priority (None where the OS has no such call)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return None
+    return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+
+def _set_scheduling(scheduling: tuple[int, int] | None) -> None:
+    if scheduling is not None:
+        os.sched_setscheduler(0, scheduling[0], os.sched_param(scheduling[1]))
 
 
 class SimulatedTarget:
@@ -86,6 +127,7 @@ class FrankyBackend:
         self.period_ms = max(1, round(config.period * 1000))
         self.scene = SimulatedTarget(config) if self.fc.simulated_target else None
         self.robot: Any = None
+        self._loop_scheduling: tuple[int, int] | None = None
         self.report = None
         self._fault: Fault | None = None
         self._last_target: np.ndarray | None = None
@@ -97,9 +139,18 @@ class FrankyBackend:
     def _connect(self) -> None:
         f = self.franky
         realtime = f.RealtimeConfig.Enforce if self.fc.realtime == "enforce" else f.RealtimeConfig.Ignore
-        robot = f.Robot(self.fc.ip, realtime_config=realtime)
+        before = _scheduling()
+        try:
+            robot = f.Robot(self.fc.ip, realtime_config=realtime)
+            after = _scheduling()
+        finally:
+            _set_scheduling(before)  # libfranka raised this thread; the priority is for the 1 kHz loop
+        self._loop_scheduling = after if after is not None and after != before else None
         lib = libfranka_version()
         self.report = verify_model(robot, f, self.description, server_version_for(lib) if lib else None)
+        acceleration, jerk = JOINT_DYNAMICS_LIMITS[self.description.model.name]
+        for limit, ours in ((robot.joint_acceleration_limit, acceleration), (robot.joint_jerk_limit, jerk)):
+            limit.set(np.minimum(np.asarray(limit.max, float), ours))  # franky refuses more than its max
         robot.relative_dynamics_factor = f.RelativeDynamicsFactor(*self.fc.dynamics)
         robot.set_collision_behavior(
             list(self.fc.lower_torque_thresholds),
@@ -108,6 +159,7 @@ class FrankyBackend:
             list(self.fc.upper_force_thresholds),
         )
         robot.set_joint_impedance(list(self.fc.joint_impedance))
+        self._vmax = np.asarray(robot.joint_velocity_limit.get(), float)
         self.robot = robot
         self._q = np.asarray(robot.current_joint_state.position, float)
         self._last_target = None
@@ -133,9 +185,26 @@ class FrankyBackend:
         names = [n for n in dir(errors) if not n.startswith("_")]
         return tuple(n for n in names if getattr(errors, n, False) is True)
 
+    @contextlib.contextmanager
+    def _loop_priority(self) -> Iterator[None]:
+        """Around ``move``: the scheduling libfranka obtained, for a 1 kHz thread ``move`` may start."""
+        before = _scheduling() if self._loop_scheduling is not None else None
+        if before is not None:
+            try:
+                _set_scheduling(self._loop_scheduling)
+            except OSError as exc:  # no longer permitted: the loop runs at this thread's priority
+                log.warning("franka: cannot raise the 1 kHz loop's priority: %s", exc)
+                before = self._loop_scheduling = None
+        try:
+            yield
+        finally:
+            if before is not None:
+                _set_scheduling(before)
+
     def _move(self, motion: Any) -> None:
         try:
-            self.robot.move(motion, asynchronous=True)
+            with self._loop_priority():
+                self.robot.move(motion, asynchronous=True)
         except Exception as exc:  # franky rethrows a stored motion error here, or refuses the move
             self._set_fault(exc)
 
@@ -159,7 +228,10 @@ class FrankyBackend:
         if self.fc.stream == "rest" or self._last_target is None:
             waypoints = [f.JointWaypoint(f.JointState(q))]
         else:
-            v = (q - self._last_target) / self.config.period
+            # Within the velocity limit the waypoint is planned with: Ruckig refuses a faster target (a
+            # planner error ends the motion), e.g. when the controller re-anchors on the measured arm.
+            vmax = self._vmax * self.fc.dynamics[0]
+            v = np.clip((q - self._last_target) / self.config.period, -vmax, vmax)
             coast = np.clip(q + v * self.config.period, self.lower, self.upper)
             waypoints = [
                 f.JointWaypoint(f.JointState(q, v), minimum_time=f.Duration(self.period_ms)),
@@ -180,15 +252,20 @@ class FrankyBackend:
         self._stopping = True
         try:
             state = self.robot.state
-            amax = np.asarray(self.robot.joint_acceleration_limit.max, float)
+            amax = HOLD_DYNAMICS[1] * np.asarray(self.robot.joint_acceleration_limit.get(), float)
+            jmax = HOLD_DYNAMICS[2] * np.asarray(self.robot.joint_jerk_limit.get(), float)
         except Exception as exc:
             self._set_fault(exc)
             return
-        q_d, dq_d = np.asarray(state.q_d, float), np.asarray(state.dq_d, float)
-        # Braking distance at 80% of the limit: the jerk-limited profile needs a little more room than a
-        # constant deceleration, and a target too close makes it overshoot and come back.
-        stop = np.clip(q_d + dq_d * np.abs(dq_d) / (2 * BRAKE_FRACTION * amax), self.lower, self.upper)
-        self.robot.relative_dynamics_factor = 1.0  # braking may use the arm's full limits
+        q_d, dq_d, ddq_d = (np.asarray(x, float) for x in (state.q_d, state.dq_d, state.ddq_d))
+        # One braking time for all joints, as franky's time-synchronized profile has: the longest
+        # jerk-limited stop (full deceleration, the ramps to and from it, and undoing the present
+        # acceleration). Each joint's stop point is then where decelerating over that time takes it; a
+        # per-joint point that a longer synchronized profile reaches early makes Ruckig overshoot it and
+        # come back.
+        duration = np.max(np.abs(dq_d) / amax + amax / jmax + np.abs(ddq_d) / jmax)
+        stop = np.clip(q_d + dq_d * duration / 2, self.lower, self.upper)
+        self.robot.relative_dynamics_factor = self.franky.RelativeDynamicsFactor(*HOLD_DYNAMICS)
         self._hold_at(stop)
 
     def _hold_at(self, q: np.ndarray) -> None:
@@ -233,7 +310,8 @@ class FrankyBackend:
         self._last_target = None
         self._stopping = True
         try:
-            self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
+            with self._loop_priority():
+                self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
             if not self.robot.join_motion(timeout=timeout_s):
                 raise TimeoutError(f"franka did not reach home within {timeout_s} s")
             self._hold_at(np.asarray(q_home, float))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -13,6 +14,26 @@ from typing import Any
 import pytest
 import yaml
 from loopback import free_endpoint, unique_name
+
+from deploy.commands import TOKEN_ENV
+
+PARTS = ("robot-io", "vision", "learn", "monitor")  # what ``adaptiveh up`` runs on configs/sim.yaml
+
+
+def parts_of(config: Path) -> dict[str, int]:
+    """pid of every running ``deploy.cli <part> --config <config>`` process (Linux: reads /proc)."""
+    found = {}
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        words = [a.decode(errors="replace") for a in args]
+        if str(config) in words and "deploy.cli" in words:
+            part = words[words.index("deploy.cli") + 1]
+            if part in PARTS:
+                found[part] = int(pid)
+    return found
 
 
 def write_stack_config(
@@ -50,9 +71,10 @@ def learn_one_episode(config: Path, checkpoint_dir: Path) -> dict:
 
 @contextmanager
 def running_part(
-    part: str, cfg: dict, directory: Path, ready: Callable[[], Any]
+    part: str, cfg: dict, directory: Path, ready: Callable[[], Any], token: str = ""
 ) -> Iterator[subprocess.Popen]:
-    """``adaptiveh <part>`` on ``cfg`` (written to ``directory``) as a subprocess until the block ends.
+    """``adaptiveh <part>`` on ``cfg`` (written to ``directory``) as a subprocess until the block ends;
+    ``token`` is the operator token it gets through its environment (as under ``adaptiveh up``).
 
     ``ready()`` waits for the part to be up (a probe's ``wait``, raising AssertionError on time-out); if
     it never is, the test fails with the part's own output. The part is terminated (then killed) after.
@@ -64,6 +86,7 @@ def running_part(
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        env={**os.environ, **({TOKEN_ENV: token} if token else {})},
     )
     try:
         try:

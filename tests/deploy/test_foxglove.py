@@ -30,8 +30,13 @@ from deploy.transport import ZenohConfig, open_session
 Q = [0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78]
 
 
+ME = "0a1b2c3d4e5f6071"  # the learner session the arm obeys
+
+
 def state(seq: int, ee: list[float]) -> m.RobotState:
-    return m.RobotState(seq=seq, stamp=time.time(), q=Q, dq=[0.0] * 7, ee_pos=ee, ee_vel=[0.0] * 3, mode=1)
+    return m.RobotState(
+        seq=seq, stamp=time.time(), q=Q, dq=[0.0] * 7, ee_pos=ee, ee_vel=[0.0] * 3, mode=1, session=ME
+    )
 
 
 def test_obj_polygons_become_stl_triangles() -> None:
@@ -53,10 +58,20 @@ def test_recorded_scene_shows_the_plan_and_the_cut_rest(tmp_path: Path, endpoint
             m.Target(position=[0.5, 0.1, 0.3], velocity=[0] * 3, covariance=[0] * 9, valid=True, status=1),
         ),
         (m.STATE, state(1, [0.4, 0.0, 0.3])),
-        (m.CMD_CHUNK, m.ActionChunk(seq=7, actions=[0.01, 0, 0] * 4, predicted_ee=predicted)),
+        (m.CMD_CHUNK, m.ActionChunk(seq=7, actions=[0.01, 0, 0] * 4, predicted_ee=predicted, session=ME)),
+        # A stranger's plan: robot-io refuses it, so it is not drawn.
+        (m.CMD_CHUNK, m.ActionChunk(seq=9, actions=[0.01, 0, 0], predicted_ee=[1, 1, 1], session="f" * 16)),
         (m.STATE, state(2, [0.41, 0.0, 0.3])),
-        (m.CHUNK_STATUS, m.ChunkStatus(chunk_seq=7, executed=1, dropped=3, preempted_by=8, done=True)),
-        (m.CMD_CHUNK, m.ActionChunk(seq=8, actions=[0.0, 0, 0] * 2)),  # no prediction: no plan path
+        (
+            m.CHUNK_STATUS,
+            m.ChunkStatus(
+                chunk_seq=7, executed=1, dropped=3, preempted_by=8, done=True, session=ME, verdict=1
+            ),
+        ),
+        (
+            m.CMD_CHUNK,
+            m.ActionChunk(seq=8, actions=[0.0, 0, 0] * 2, session=ME),
+        ),  # no prediction: no plan path
         (m.STATE, state(3, [0.41, 0.0, 0.3])),
         (m.STATE, state(4, [0.41, 0.0, 0.3])),
     ]
@@ -83,6 +98,7 @@ def test_recorded_scene_shows_the_plan_and_the_cut_rest(tmp_path: Path, endpoint
     triples = [predicted[i : i + 3] for i in range(0, len(predicted), 3)]
     first_plan = next(s for s in scenes if "plan" in s)  # drawn as soon as the plan arrives
     assert line(first_plan, "plan") == [[0.4, 0.0, 0.3], *triples]  # the arm at arrival, then the prediction
+    assert all([1.0, 1.0, 1.0] not in line(s, "plan") for s in scenes if "plan" in s)  # not the stranger's
     cut = next(s for s in scenes if "abandoned" in s)
     assert line(cut, "abandoned") == triples  # one action played (the arm at triples[0]), three dropped
     assert "plan" not in scenes[-1] and "abandoned" in scenes[-1] and "executed" in scenes[-1]

@@ -29,13 +29,13 @@ SAMPLES = [
     m.CameraFrame(width=2, height=1, rgb=bytes(6), depth=bytes(4), intrinsics=[600, 600, 1, 0.5]),
     m.AnnotatedImage(jpeg=b"\xff\xd8", detected=True),
     m.ActionChunk(seq=9, actions=np.full(6, 0.01), segment=2),
-    m.ChunkStatus(chunk_seq=9, executed=4, dropped=6, preempted_by=10, done=True),
+    m.ChunkStatus(chunk_seq=9, executed=4, dropped=6, preempted_by=10, done=True, session="ab", verdict=1),
     m.RetreatEvent(
         segment=1, H=12, reason=m.RetreatEvent.RETREAT, statistic=[0.5, -0.1], threshold=0.01, global_step=99
     ),
     m.SafetyEvent(kind=m.SafetyEvent.WATCHDOG, detail="no command", held=True),
     m.LearnerTelemetry(global_step=10, episode=1, episode_return=-3.5, algo="adaptiveh"),
-    m.Control(command=m.Control.JOG, jog=[0.01, 0, 0], token="abc"),
+    m.Control(command=m.Control.JOG, jog=[0.01, 0, 0], mac=b"\x01" * 32),
     m.ResetRequest(seed=7),
     m.ResetReply(
         ok=True,

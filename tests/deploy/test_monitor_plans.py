@@ -18,37 +18,52 @@ def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):
         put = {t: bus.publisher(t) for t in (m.STATE, m.CMD_CHUNK, m.CHUNK_STATUS, m.EVENTS_RETREAT)}
         probe = BusProbe(bus)
         zero3 = [0.0, 0.0, 0.0]
+        me, stranger = "0a1b2c3d4e5f6071", "ffffffffffffffff"
 
         def state(tick: int, y: float, chunk: int = -1, index: int = -1) -> None:
             put[m.STATE](
                 m.RobotState(
                     ee_pos=[0.5, y, 0.3], ee_vel=zero3, mode=m.RobotState.RUNNING, tick=tick,
-                    played_chunk=chunk, played_index=index, chunk_seq=max(chunk, 0),
+                    played_chunk=chunk, played_index=index, chunk_seq=max(chunk, 0), session=me,
                 )
             )  # fmt: skip
 
         state(100, 0.0)
         probe.wait(lambda: mon.robot.get("ee") == [0.5, 0.0, 0.3], 5, "the first state")
         path = [v for i in range(1, 6) for v in (0.5, 0.01 * i, 0.3)]
-        first = put[m.CMD_CHUNK](m.ActionChunk(actions=[0.0, 0.01, 0.0] * 5, segment=3, predicted_ee=path))
-        probe.wait(lambda: first in mon.plans, 5, "the plan")
+        first = put[m.CMD_CHUNK](
+            m.ActionChunk(actions=[0.0, 0.01, 0.0] * 5, segment=3, predicted_ee=path, session=me)
+        )
+        probe.wait(lambda: (me, first) in mon.plans, 5, "the plan")
+        # A stranger's chunk is not a plan of the arm's; its refusal is counted, not drawn.
+        forged = m.ActionChunk(seq=first + 1, actions=[0.05, 0, 0], predicted_ee=[1, 1, 1], session=stranger)
+        bus.session.put(bus.key(m.CMD_CHUNK), forged.SerializeToString())
+        put[m.CHUNK_STATUS](
+            m.ChunkStatus(
+                chunk_seq=first + 1, dropped=1, done=True, session=stranger, verdict=m.ChunkStatus.FOREIGN
+            )
+        )
+        probe.wait(lambda: mon.counts["refused"] == 1, 5, "the refusal")
         for i in range(2):
             state(101 + i, 0.01 * (i + 1), first, i)
         state(102, 0.02, first, 1)  # a state between ticks repeats its tick: not a second step
         put[m.EVENTS_RETREAT](m.RetreatEvent(segment=3, H=2, reason=m.RetreatEvent.RETREAT))
         probe.wait(lambda: mon.counts["retreats"] == 1, 5, "the retreat")
         second = put[m.CMD_CHUNK](
-            m.ActionChunk(actions=[0.0, 0.0, -0.01] * 4, segment=4, predicted_ee=[0.0] * 12)
+            m.ActionChunk(actions=[0.0, 0.0, -0.01] * 4, segment=4, predicted_ee=[0.0] * 12, session=me)
         )
-        probe.wait(lambda: second in mon.plans, 5, "the retreat's plan")
+        probe.wait(lambda: (me, second) in mon.plans, 5, "the retreat's plan")
         put[m.CHUNK_STATUS](
-            m.ChunkStatus(chunk_seq=first, executed=2, dropped=3, preempted_by=second, done=True)
-        )
+            m.ChunkStatus(
+                chunk_seq=first, executed=2, dropped=3, preempted_by=second, done=True, session=me,
+                verdict=m.ChunkStatus.ACCEPTED,
+            )
+        )  # fmt: skip
         state(103, 0.02, second, 0)
-        arrived = lambda: len(mon.plans[second]["path"]) == 2 and mon.plans[first]["done"]  # noqa: E731
+        arrived = lambda: len(mon.plans[me, second]["path"]) == 2 and mon.plans[me, first]["done"]  # noqa: E731
         probe.wait(arrived, 5, "the new plan's tick and the old one's status")
         snap = mon.snapshot()
-        old, new = snap["plans"]
+        old, new = snap["plans"]  # the forged chunk is not among them
         assert old["path"] == [[0.5, 0.0, 0.3], [0.5, 0.01, 0.3], [0.5, 0.02, 0.3]]
         assert old["planned"] == [[0.5, 0.0, 0.3]] + [[0.5, round(0.01 * i, 4), 0.3] for i in range(1, 6)]
         assert (old["executed"], old["dropped"], old["queued"]) == (2, 3, 0)

@@ -19,7 +19,7 @@ def plan(plan_id: int, actions) -> Plan:
 
 
 def send(book: PlanBook, seq: int, p: Plan, reason: str | None = None) -> int:
-    return book.send(lambda: seq, p, p.actions, reason)
+    return book.send(lambda: (seq, 100.0 + seq), p, p.actions, reason)  # stamp: a function of seq here
 
 
 def test_delayed_sender_keeps_order_and_forgets_on_cancel():
@@ -49,20 +49,34 @@ def test_plan_book_counts_planned_motion_dropped_by_a_newer_plan():
     assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=0)) is None  # progress
     assert book.on_status(m.ChunkStatus(chunk_seq=99, executed=1, dropped=3, preempted_by=second)) is None
     assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=-1)) is None
-    drop = book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second))
+    forged = m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second, chunk_stamp=1.0)
+    assert book.on_status(forged) is None  # our number, another chunk (not our stamp)
+    drop = book.on_status(
+        m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second, chunk_stamp=100.0 + first)
+    )
     assert (drop.plan_id, drop.by_plan_id, drop.by_reason) == (0, 1, "retreat")
     assert (drop.dropped, drop.moving) == (4, 3) and abs(drop.path_m - 0.03) < 1e-12
     assert (book.dropped_planned, book.dropped_moving, book.preemptions) == (4, 3, 1)
 
 
 def test_played_names_the_plan_action_and_holds_otherwise():
-    book = PlanBook()
+    book, me = PlanBook(), "0a1b2c3d4e5f6071"
     seq = send(book, 5, plan(7, [[0.0, 0.02, 0.0], [0.0, 0.0, 0.05]]))
-    pid, index, action = played(m.RobotState(tick=3, played_chunk=seq, played_index=1), book)
+    stamp = 100.0 + seq
+    state = m.RobotState(tick=3, played_chunk=seq, played_index=1, session=me, played_stamp=stamp)
+    pid, index, action = played(state, book, me)
     assert (pid, index) == (7, 1) and action.tolist() == [0.0, 0.0, 0.05]
-    assert played(m.RobotState(tick=4, played_chunk=-1, played_index=-1), book)[:2] == (-1, -1)
-    assert played(m.RobotState(tick=5, played_chunk=6, played_index=0), book)[:2] == (-1, -1)
-    assert book.foreign_ticks == 1
+    assert played(m.RobotState(tick=4, played_chunk=-1, played_index=-1, session=me), book, me)[:2] == (
+        -1,
+        -1,
+    )
+    assert played(m.RobotState(tick=5, played_chunk=6, played_index=0, session=me), book, me)[:2] == (-1, -1)
+    # The same number of another session (the arm taken over, or a restarted learner's) is not our plan.
+    other = m.RobotState(tick=6, played_chunk=seq, played_index=0, session="f" * 16, played_stamp=stamp)
+    assert played(other, book, me)[:2] == (-1, -1)
+    forged = m.RobotState(tick=7, played_chunk=seq, played_index=0, session=me, played_stamp=stamp + 1)
+    assert played(forged, book, me)[:2] == (-1, -1)
+    assert book.foreign_ticks == 3
 
 
 def test_cap_steps_caps_the_norm_and_keeps_the_direction():

@@ -8,18 +8,15 @@ displacement comes from the new plan. The env reports every tick once and in ord
 
 from __future__ import annotations
 
-import socket
 import time
 
 import numpy as np
 import pytest
-from bus_probe import BusProbe
-from loopback import free_endpoint, unique_name
-from stack_helpers import running_part
 
 from deploy import messages as m
 from deploy.config import StackConfig
 from deploy.learner_node import LearnerNode, env_settings
+from deploy.signing import mac_key
 from deploy.transport import Bus, open_session
 from deploy.zenoh_env import ZenohReachEnv
 from learner.plans import Executed, Plan
@@ -27,46 +24,11 @@ from learner.plans import Executed, Plan
 RATE = 20.0
 
 
-@pytest.fixture(scope="module")
-def robot(tmp_path_factory):
-    """robot-io owning a loopback hub (so the test's sessions and a learner node reach each other through
-    it); yields (stack config for the learner's side, probe on the bus)."""
-    hub = free_endpoint()
-    cfg = {
-        "name": unique_name("plan"),
-        "zenoh": {"hub": hub},
-        "robot": {"backend": "pybullet", "control_rate_hz": RATE, "target_motion": "slow"},
-    }
-    stack = StackConfig.model_validate({**cfg, "learner": {"target_topic": "sim/target_truth"}})
-    joined: list[BusProbe] = []
-
-    def up() -> None:
-        port = int(hub.rsplit(":", 1)[1])
-        deadline = time.monotonic() + 60
-        while True:  # join only once robot-io holds the hub, or this session would take it
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                assert time.monotonic() < deadline, "robot-io never listened on the hub"
-                time.sleep(0.2)
-        probe = BusProbe(Bus(open_session(stack.zenoh), cfg["name"]))
-        probe.states = probe.collect(m.STATE, arrival=False, maxlen=50)
-        probe.status = probe.collect(m.CHUNK_STATUS, arrival=False)
-        probe.bus.declare_alive("learner")  # robot-io watches the learner's token
-        joined.append(probe)
-        probe.wait(lambda: len(probe.states) > 3, 60, "robot states")
-
-    with running_part("robot-io", cfg, tmp_path_factory.mktemp("plan"), up):
-        yield stack, joined[0]
-        joined[0].bus.close()
-
-
-def open_env(stack: StackConfig, **learner) -> ZenohReachEnv:
+def open_env(stack: StackConfig, token: str, **learner) -> ZenohReachEnv:
     cfg = stack.model_copy(
         update={"learner": stack.learner.model_copy(update={"execution": "plan", **learner})}
     )
-    return ZenohReachEnv(Bus(open_session(stack.zenoh), stack.name), env_settings(cfg))
+    return ZenohReachEnv(Bus(open_session(stack.zenoh), stack.name, mac_key(token)), env_settings(cfg))
 
 
 def straight(plan_id: int, obs: np.ndarray, step: list[float], n: int, env: ZenohReachEnv) -> Plan:
@@ -87,9 +49,9 @@ def advance_until(env: ZenohReachEnv, pred, limit: int = 60) -> list[Executed]:
     raise AssertionError(f"not within {limit} ticks: {[(s.plan_id, s.index) for s in steps]}")
 
 
-def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot):
-    stack, probe = robot
-    env = open_env(stack)
+def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot_hub):
+    stack, probe = robot_hub
+    env = open_env(stack, probe.token)
     try:
         obs, _ = env.reset(seed=1)
         sideways = straight(0, obs, [0.0, 0.012, 0.0], 30, env)
@@ -114,7 +76,11 @@ def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot):
             for sent in (env.book.get(env.chunk_seq - 1), env.book.get(env.chunk_seq))
         }
         status = probe.wait(
-            lambda: [s for s in probe.status if s.chunk_seq == seqs[0] and s.preempted_by == seqs[1]],
+            lambda: [
+                s
+                for s in probe.status
+                if s.session == env.session.id and s.chunk_seq == seqs[0] and s.preempted_by == seqs[1]
+            ],
             3,
             "status",
         )[0]
@@ -128,9 +94,9 @@ def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot):
         env.bus.close()
 
 
-def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot):
-    stack, _ = robot
-    env = open_env(stack, latency_ms=250.0)
+def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot_hub):
+    stack, probe = robot_hub
+    env = open_env(stack, probe.token, latency_ms=250.0)
     try:
         obs, _ = env.reset(seed=2)
         env.send(straight(0, obs, [0.0, -0.01, 0.0], 40, env))
@@ -146,18 +112,18 @@ def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot):
         env.bus.close()
 
 
-def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot, tmp_path):
+def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub, tmp_path):
     """The real learner (AdaptiveH, ``learner.execution: plan``): every retreat's plan preempts non-zero
     planned motion on the robot, and the robot's very next tick plays the new plan's first action.
     Last in the module: the learner's liveliness token going away holds the robot."""
-    stack, probe = robot
+    stack, probe = robot_hub
     chunks = probe.collect(m.CMD_CHUNK, arrival=False)
     retreats = probe.collect(m.EVENTS_RETREAT, arrival=False)
     ticks = probe.collect(m.STATE, arrival=False)
     learner = stack.learner.model_copy(
         update={"execution": "plan", "steps": 300, "max_episode_steps": 50, "checkpoint_dir": str(tmp_path)}
     )
-    node = LearnerNode(stack.model_copy(update={"learner": learner}))
+    node = LearnerNode(stack.model_copy(update={"learner": learner}), control_token=probe.token)
     try:
         res = node.run()
     finally:
@@ -165,14 +131,19 @@ def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot, tm
     assert res["execution"] == "plan" and res["global_step"] == 300
     assert res["retreat_preemptions"] >= 1, res["segments"]
     assert res["retreat_dropped_moving"] == res["retreat_dropped"] > 0  # planned motion, not zeros
+    me = res["session"]  # chunk numbers restart with each session (the earlier tests' envs had theirs)
     with probe.lock:
-        by_tick = {s.tick: s for s in ticks}
-        plan_of_segment = {c.segment: c for c in chunks}
-        seqs = {c.seq: c for c in chunks}
+        by_tick = {s.tick: s for s in ticks if s.session == me}
+        plan_of_segment = {c.segment: c for c in chunks if c.session == me}
+        seqs = {c.seq: c for c in chunks if c.session == me}
         # A retreat's plan opens the next segment (none after the run's last step).
         opened = [plan_of_segment.get(e.segment + 1) for e in retreats if m.label(e, "reason") == "retreat"]
         opened = [c for c in opened if c is not None]
-        preempted = {s.preempted_by: s for s in probe.status if s.preempted_by in seqs and s.dropped}
+        preempted = {
+            s.preempted_by: s
+            for s in probe.status
+            if s.session == me and s.preempted_by in seqs and s.dropped
+        }
     assert opened
     checked = 0
     for new in opened:

@@ -214,7 +214,7 @@ def test_bytes_that_do_not_decode_are_kept_apart(tmp_path: Path, endpoint: str) 
     session = open_session(ZenohConfig(listen=(endpoint,)))
     path = tmp_path / "r.mcap"
     recorder = Recorder(session, "rj", path)
-    good = m.ChunkStatus(chunk_seq=3, executed=1, dropped=0, preempted_by=-1).SerializeToString()
+    good = m.ChunkStatus(chunk_seq=3, executed=1, dropped=0, preempted_by=-1, verdict=1).SerializeToString()
     try:
         session.put("adaptiveh/rj/cmd/status", good)
         session.put("adaptiveh/rj/cmd/status", b"\xff\x00garbage")

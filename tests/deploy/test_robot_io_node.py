@@ -12,6 +12,7 @@ from loopback import free_port, unique_name
 from stack_helpers import running_part
 
 from deploy import messages as m
+from deploy.learner_session import LearnerSession
 from deploy.transport import Bus, ZenohConfig, open_session
 
 RATE = 20.0
@@ -59,33 +60,47 @@ def robot(tmp_path_factory):
     endpoint = (f"tcp/127.0.0.1:{port}",)
     bus = Bus(open_session(ZenohConfig(connect=endpoint)), name)
     listener = Listener(bus)
-    learner = [Bus(open_session(ZenohConfig(connect=endpoint)), name)]  # the learner's session, swappable
-    learner[0].declare_alive("learner")
     tmp = tmp_path_factory.mktemp("robot_io")
     up = lambda: listener.wait(lambda: len(listener.states) > 3, 60)  # noqa: E731
+    Robot.endpoint = endpoint
     with running_part("robot-io", cfg, tmp, up) as proc:
-        Robot.endpoint, Robot.learner = endpoint, learner
+        Robot.start_learner(name)  # joins robot-io's listener (a session opened before retries slowly)
         yield bus, listener, proc
-        learner[0].close()
+        Robot.learner.close()
         bus.close()
 
 
 class Robot:
+    """The test's learner: its own Zenoh session, the ``learner`` token and a learner session id."""
+
     endpoint: tuple[str, ...] = ()
-    learner: list[Bus] = []
+    learner: Bus
+    session: LearnerSession
+
+    @classmethod
+    def start_learner(cls, name: str) -> None:
+        cls.learner = Bus(open_session(ZenohConfig(connect=cls.endpoint)), name)
+        cls.learner.declare_alive("learner")
+        cls.session = LearnerSession(cls.learner)
+        Chunks.seq = -1  # a new session numbers its chunks from 0
 
 
 class Chunks:
-    seq = 0
+    seq = -1
 
     @classmethod
-    def send(cls, bus: Bus, actions, predicted_ee=(), seq: int | None = None) -> int:
-        """Put a chunk numbered ``seq`` (default: the next number)."""
+    def send(
+        cls, bus: Bus, actions, predicted_ee=(), seq: int | None = None, session: str | None = None
+    ) -> int:
+        """Put a chunk of the learner's session (or ``session``) numbered ``seq`` (default: the next)."""
         if seq is None:
             seq = cls.seq + 1
         cls.seq = max(cls.seq, seq)
         msg = m.ActionChunk(
-            seq=seq, actions=np.asarray(actions, float).ravel(), predicted_ee=np.asarray(predicted_ee).ravel()
+            seq=seq,
+            actions=np.asarray(actions, float).ravel(),
+            predicted_ee=np.asarray(predicted_ee).ravel(),
+            session=Robot.session.id if session is None else session,
         )
         cls.put(bus, msg.SerializeToString())
         return seq
@@ -97,6 +112,11 @@ class Chunks:
         pub.undeclare()
 
 
+def own(listener: Listener) -> list[m.ChunkStatus]:
+    """The statuses of the current learner session's chunks (numbers restart with each session)."""
+    return [s for s in listener.status if s.session == Robot.session.id]
+
+
 def states_after(listener: Listener, t: float) -> list[m.RobotState]:
     with listener.lock:
         return [s for arrived, s in listener.states if arrived > t]
@@ -104,8 +124,8 @@ def states_after(listener: Listener, t: float) -> list[m.RobotState]:
 
 def test_01_reset_query_homes_the_arm(robot):
     bus, listener, _ = robot
-    reply = bus.query(m.RESET, m.ResetRequest(seed=3), timeout=20)
-    assert reply.ok
+    reply = Robot.session.reset(3, timeout=20)  # also takes the arm over for the learner's session
+    assert reply.ok, reply.detail
     state = reply.state
     np.testing.assert_allclose(state.ee_pos, [0.307, 0.0, 0.485], atol=2e-3)
     assert state.mode == m.RobotState.RUNNING
@@ -133,12 +153,10 @@ def test_03_newer_chunk_preempts_and_reports_dropped(robot):
     time.sleep(0.3)
     second = Chunks.send(bus, np.tile([0.0, 0.0, -0.001], (2, 1)))
     report = listener.wait(
-        lambda: [s for s in listener.status if s.chunk_seq == first and s.preempted_by == second], timeout=3
+        lambda: [s for s in own(listener) if s.chunk_seq == first and s.preempted_by == second], timeout=3
     )[0]
     assert report.executed >= 2 and report.dropped == 40 - report.executed and report.done
-    done = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == second and s.done], timeout=3)[
-        0
-    ]
+    done = listener.wait(lambda: [s for s in own(listener) if s.chunk_seq == second and s.done], timeout=3)[0]
     assert done.executed == 2 and done.dropped == 0
 
 
@@ -169,7 +187,7 @@ def test_05_estop_stops_the_arm_within_two_periods(robot):
     )
     assert settled[0].mode == m.RobotState.ESTOP and max(abs(v) for v in settled[0].dq) < 0.01
     refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
-    status = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == refused], timeout=2)[0]
+    status = listener.wait(lambda: [s for s in own(listener) if s.chunk_seq == refused], timeout=2)[0]
     assert status.executed == 0 and status.dropped == 1
     control(bus, "release")
     listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)
@@ -178,21 +196,26 @@ def test_05_estop_stops_the_arm_within_two_periods(robot):
 def test_06_learner_liveliness_loss_holds_the_arm(robot):
     bus, listener, _ = robot
     before = len(listener.events("liveliness"))
-    Robot.learner[0].close()  # the learner process goes away
+    Robot.learner.close()  # the learner process goes away
     _, event = listener.wait(lambda: listener.events("liveliness")[before:], timeout=3)[0]
     assert "learner" in event.detail and event.held
     listener.wait(lambda: listener.latest().mode == m.RobotState.HELD, timeout=2)
     refused = Chunks.send(bus, [[0.0, 0.01, 0.0]])
     time.sleep(3 * PERIOD)
     assert listener.latest().mode == m.RobotState.HELD
-    assert not [s for s in listener.status if s.chunk_seq == refused and s.executed > 0]
-    Robot.learner[0] = Bus(open_session(ZenohConfig(connect=Robot.endpoint)), bus.robot)
-    Robot.learner[0].declare_alive("learner")  # it restarts: the hold clears
+    assert not [s for s in own(listener) if s.chunk_seq == refused and s.executed > 0]
+    Robot.start_learner(bus.robot)  # it restarts: the hold clears
     try:
         listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=3)
     except AssertionError as exc:
         kinds = [m.label(e, "kind") for _, e in listener.safety][-6:]
         raise AssertionError(f"mode {m.label(listener.latest(), 'mode')}; events {kinds}") from exc
+    old = Chunks.send(bus, [[0.0, 0.01, 0.0]], seq=refused + 1, session=listener.latest().session)
+    status = listener.wait(lambda: [s for s in listener.status if s.chunk_seq == old], timeout=2)[0]
+    assert m.label(status, "verdict") == "foreign"  # the dead session's id, copied: obeyed no more
+    assert Robot.session.reset(-1, timeout=20).ok  # the new session takes over
+    Chunks.seq = -1  # its chunks are numbered from 0
+    listener.wait(lambda: listener.latest().session == Robot.session.id, timeout=2)
 
 
 def test_07_bad_bytes_are_reported_and_the_process_lives(robot):
@@ -225,7 +248,10 @@ def test_08_a_bad_plan_is_refused_whole_and_the_arm_holds(robot):
             "bad_message",
             "NaN",
             lambda seq: Chunks.put(
-                bus, m.ActionChunk(seq=seq, actions=[0.0, np.nan, 0.0]).SerializeToString()
+                bus,
+                m.ActionChunk(
+                    seq=seq, actions=[0.0, np.nan, 0.0], session=Robot.session.id
+                ).SerializeToString(),
             ),
         ),
     ]
@@ -238,7 +264,7 @@ def test_08_a_bad_plan_is_refused_whole_and_the_arm_holds(robot):
         t_event, event = listener.wait(lambda k=kind, b=before: listener.events(k)[b:], 3, why)[0]
         assert why in event.detail and "refused whole" in event.detail, event.detail
         stop = listener.wait(
-            lambda p=playing: [s for s in listener.status if s.chunk_seq == p and s.done],
+            lambda p=playing: [s for s in own(listener) if s.chunk_seq == p and s.done],
             3,
             "the old plan's end",
         )[0]
@@ -249,7 +275,43 @@ def test_08_a_bad_plan_is_refused_whole_and_the_arm_holds(robot):
         ee = np.array([s.ee_pos for s in held])
         assert np.ptp(ee, axis=0).max() < 2e-3, ee  # m: the arm stands where it stopped
         assert all(s.chunk_seq == playing for s in held)  # the refused number was not taken
-        assert not [s for s in listener.status if s.chunk_seq == refused and s.executed]
+        assert not [s for s in own(listener) if s.chunk_seq == refused and s.executed]
         Chunks.send(bus, [[0.0, 0.0, 0.0]], seq=refused)  # so a valid plan with it plays
         listener.wait(lambda r=refused: listener.latest().chunk_seq == r, 3, "the next valid plan")
         listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)
+
+
+def test_09_only_the_obeyed_session_steers_the_arm(robot):
+    """Forged, replayed and foreign chunks are refused with their verdict and a safety event while the
+    genuine plan plays on; a reset from a session without a live token cannot take the arm (issue #13's
+    wedge: one altered number used to freeze the arm, silently)."""
+    bus, listener, _ = robot
+    before = len(listener.events("foreign_command"))
+    playing = Chunks.send(bus, np.tile([0.0, 0.0, -0.002], (30, 1)))
+    listener.wait(lambda: listener.latest().played_chunk == playing, 3, "the genuine plan playing")
+    forged = {
+        "seq_jump": Chunks.send(bus, [[0.0, 0.05, 0.0]], seq=playing + 10**9),
+        "stale": Chunks.send(bus, [[0.0, 0.05, 0.0]], seq=playing),
+        "foreign": Chunks.send(bus, [[0.0, 0.05, 0.0]], seq=playing + 1, session="0123456789abcdef"),
+    }
+    Chunks.seq = playing  # the forgeries did not consume the genuine learner's next number
+    for verdict, seq in forged.items():
+        status = listener.wait(
+            lambda s=seq, v=verdict: [
+                x for x in listener.status if x.chunk_seq == s and m.label(x, "verdict") == v
+            ],
+            3,
+            f"the {verdict} refusal",
+        )[0]
+        assert status.executed == 0 and status.dropped == 1
+    _, event = listener.wait(lambda: listener.events("foreign_command")[before:], 3, "a safety event")[0]
+    assert not event.held and "ignored" in event.detail
+    time.sleep(4 * PERIOD)
+    assert listener.latest().played_chunk == playing  # the genuine plan kept playing throughout
+    nxt = Chunks.send(bus, [[0.0, 0.0, 0.0]])
+    listener.wait(lambda: listener.latest().chunk_seq == nxt, 3, "the genuine learner's next chunk")
+    stranger = LearnerSession(bus)  # a session id whose token is alive, but of another node: allowed
+    reply = bus.query(m.RESET, m.ResetRequest(seed=-1, session="fedcba9876543210"), timeout=20)
+    assert not reply.ok and "no liveliness token" in reply.detail
+    assert listener.latest().session == Robot.session.id
+    del stranger

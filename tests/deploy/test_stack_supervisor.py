@@ -11,25 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from stack_helpers import write_stack_config
-
-PARTS = ("robot-io", "vision", "learn", "monitor")
-
-
-def _parts_of(config: Path) -> dict[str, int]:
-    """pid of every running ``deploy.cli <part> --config <config>`` process."""
-    found = {}
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        words = [a.decode(errors="replace") for a in args]
-        if str(config) in words and "deploy.cli" in words:
-            part = words[words.index("deploy.cli") + 1]
-            if part in PARTS:
-                found[part] = int(pid)
-    return found
+from stack_helpers import PARTS, parts_of, write_stack_config
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signal is Linux only")
@@ -42,24 +24,24 @@ def test_parts_stop_when_the_supervisor_is_killed(tmp_path):
     )
     try:
         deadline = time.monotonic() + 60
-        while set(_parts_of(path)) != set(PARTS):
-            assert time.monotonic() < deadline, f"parts up: {sorted(_parts_of(path))}"
+        while set(parts_of(path)) != set(PARTS):
+            assert time.monotonic() < deadline, f"parts up: {sorted(parts_of(path))}"
             assert up.poll() is None, "adaptiveh up exited early"
             time.sleep(0.5)
         time.sleep(8.0)  # every part has started up and the learner is driving the arm
         up.send_signal(signal.SIGKILL)  # no cleanup of its own
         up.wait(timeout=10)
         deadline = time.monotonic() + 20
-        while _parts_of(path):
+        while parts_of(path):
             if time.monotonic() > deadline:
-                for pid in _parts_of(path).values():
+                for pid in parts_of(path).values():
                     os.kill(pid, signal.SIGUSR1)  # their stacks go to logs/<part>.log
                 time.sleep(1.0)
                 logs = {p.name: p.read_text()[-3000:] for p in (tmp_path / "logs").glob("*.log")}
-                pytest.fail(f"orphaned parts: {_parts_of(path)}\n{logs}")
+                pytest.fail(f"orphaned parts: {parts_of(path)}\n{logs}")
             time.sleep(0.2)
     finally:
-        for pid in _parts_of(path).values():
+        for pid in parts_of(path).values():
             os.kill(pid, signal.SIGKILL)
         if up.poll() is None:
             up.kill()
@@ -82,25 +64,25 @@ def test_a_crashed_part_is_restarted_and_the_token_is_never_on_a_command_line(tm
         token = up.stdout.readline().strip().removeprefix("operator token: ")
         assert len(token) >= 12
         deadline = time.monotonic() + 60
-        while set(_parts_of(path)) != set(PARTS):
-            assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(_parts_of(path))}"
+        while set(parts_of(path)) != set(PARTS):
+            assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(parts_of(path))}"
             time.sleep(0.5)
-        parts = _parts_of(path)
+        parts = parts_of(path)
         for pid in parts.values():
             argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
             assert token not in argv
             assert f"ADAPTIVEH_TOKEN={token}".encode() in Path(f"/proc/{pid}/environ").read_bytes()
         os.kill(parts["vision"], signal.SIGKILL)
         deadline = time.monotonic() + 30
-        while _parts_of(path).get("vision") in (None, parts["vision"]):
+        while parts_of(path).get("vision") in (None, parts["vision"]):
             assert time.monotonic() < deadline, "vision was not restarted"
             assert up.poll() is None, "adaptiveh up ended when vision died"
             time.sleep(0.2)
-        assert _parts_of(path).get("learn") == parts["learn"]  # the learner went on, untouched
+        assert parts_of(path).get("learn") == parts["learn"]  # the learner went on, untouched
         up.send_signal(signal.SIGTERM)
         assert up.wait(timeout=60) in (0, 1)
     finally:
-        for pid in _parts_of(path).values():
+        for pid in parts_of(path).values():
             os.kill(pid, signal.SIGKILL)
         if up.poll() is None:
             up.kill()

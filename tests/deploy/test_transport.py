@@ -37,7 +37,9 @@ def test_publisher_stamps_and_subscriber_decodes(buses):
     pub = a.publisher(m.CHUNK_STATUS, first_seq=41)
     time.sleep(0.3)  # let the subscription reach the publisher's session
     before = time.time()
-    seqs = [pub.put(m.ChunkStatus(chunk_seq=i, preempted_by=-1)) for i in range(3)]
+    seqs = [
+        pub.put(m.ChunkStatus(chunk_seq=i, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED)) for i in range(3)
+    ]
     a.session.put(a.key(m.CHUNK_STATUS), b"\xff\xff not protobuf")
     assert _wait(lambda: len(got) == 3 and bad)
     assert seqs == [41, 42, 43] and [s.seq for s in got] == seqs

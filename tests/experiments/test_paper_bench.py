@@ -1,4 +1,5 @@
-"""The paper pipeline on a tiny budget: every run, figure and summary field produced, finite, resumable."""
+"""The paper pipeline on a tiny budget: every run (6 methods, SAC and PPO included), figure and summary
+field produced, finite, resumable; each method's cost in the summary and the printed table."""
 
 from __future__ import annotations
 
@@ -11,20 +12,30 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
+from paper_tiny import STEPS, TINY  # noqa: E402
+
 from deploy.cli import build_parser  # noqa: E402
 from experiments import stats  # noqa: E402
+from experiments.execute import execute_run  # noqa: E402
 from experiments.metrics import run_metrics  # noqa: E402
 from experiments.paper import main_paper  # noqa: E402
-from experiments.plan import ENVS, SPEED_ENVS, build_plan  # noqa: E402
+from experiments.plan import (  # noqa: E402
+    ENVS,
+    PAPER_ALGOS,
+    SPEED_ENVS,
+    RunSpec,
+    agent_config,
+    build_plan,
+    env_kwargs,
+)
 from experiments.report import finite_leaves  # noqa: E402
+from experiments.tables import format_cost  # noqa: E402
 from learner.registry import ALGOS  # noqa: E402
 
 FIGURES = ("main_results.png", "fast_comparison.png", "h_window.png", "summary_bars.png")
-TINY = {
-    "td3": {"learning_starts": 50, "net_arch": [64, 64]},
-    "ddpg": {"learning_starts": 50, "net_arch": [64, 64]},
-}
-STEPS = 200
+# The first test here sets up the 48-run tiny plan (conftest.tiny_run): 2-4 min on 2 free cores, over
+# the 600 s default on a machine shared with other work (measured: 447 s at load 4).
+pytestmark = pytest.mark.timeout(1800)
 
 
 def _finite_stat(stat: dict) -> None:
@@ -34,24 +45,18 @@ def _finite_stat(stat: dict) -> None:
     assert stat["lo"] - 1e-9 <= stat["mean"] <= stat["hi"] + 1e-9
 
 
-@pytest.fixture(scope="module")  # the tiny pipeline takes 1-4 minutes: 32 runs, one process each
-def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    out = tmp_path_factory.mktemp("paper")
-    summary = main_paper(quick=True, out=out, jobs=2, seeds=2, steps=STEPS, overrides=TINY, progress=False)
-    return out, summary
-
-
 def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> None:
     out, summary = tiny_run
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     assert (
-        summary["plan"]["runs_total"] == summary["plan"]["runs_finished"] == 2 * len(ENVS) * len(ALGOS)
+        summary["plan"]["runs_total"] == summary["plan"]["runs_finished"] == 2 * len(ENVS) * len(PAPER_ALGOS)
     )
     files = sorted((out / "runs").glob("*.json"))
     assert len(files) == summary["plan"]["runs_total"]
     for path in files:
         run = json.loads(path.read_text())
         assert run["global_step"] == STEPS  # equal budgets, exactly
+        assert run["executor"] == "local" and TINY.get(run["algo"], {}).items() <= run["config"].items()
         assert 0 < run["wall_s"] and 20 < run["peak_rss_mb"] < 8000
         steps = run["episodes"]["global_step"]
         assert steps and steps == sorted(steps) and steps[-1] <= STEPS
@@ -72,10 +77,17 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
     assert finite_leaves(on_disk) == []
     assert set(on_disk["groups"]) == set(ENVS)
     for env, by_algo in on_disk["groups"].items():
-        assert set(by_algo) == set(ALGOS)
+        assert set(by_algo) == set(PAPER_ALGOS)
         for algo, g in by_algo.items():
             assert g["n_runs"] == 2 and g["seeds"] == [0, 1], (env, algo)
-            for key in ("return_mean", "final_return", "steps_to_threshold", "wall_s", "peak_rss_mb"):
+            for key in (
+                "return_mean",
+                "final_return",
+                "steps_to_threshold",
+                "wall_s",
+                "steps_per_s",
+                "peak_rss_mb",
+            ):
                 _finite_stat(g[key])
             assert 0.0 <= g["reached_fraction"] <= 1.0
             curve = g["curve"]
@@ -88,7 +100,13 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
         _finite_stat(h["mean_H"])
         assert abs(sum(h["histogram"]["fraction"]) - 1.0) < 1e-9
         assert h["evolution"]["steps"] and len(h["evolution"]["mean"]) == len(h["evolution"]["steps"])
-    claims = {"outperforms_td3_ddpg", "faster_convergence", "h_narrows_when_faster"}
+    claims = {
+        "outperforms_td3_ddpg",
+        "outperforms_sac_ppo",
+        "faster_convergence",
+        "h_narrows_when_faster",
+        "level_with_best_off_policy",
+    }
     assert claims <= set(on_disk["verdicts"])
     for claim in claims:
         verdict = on_disk["verdicts"][claim]["verdict"]
@@ -98,8 +116,55 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
     assert set(on_disk["per_run"]) == {p.stem for p in (out / "runs").glob("*.json")}
     assert sum(on_disk["code_commits"].values()) == len(on_disk["per_run"])  # every run names its commit
     assert "None" not in on_disk["code_commits"]
+    level = on_disk["verdicts"]["level_with_best_off_policy"]["comparisons"]
+    assert len(level) == len(ENVS) and all(k.split(":")[1] in ("td3", "ddpg", "sac") for k in level)
     table = (out / on_disk["tables"]).read_text()
-    assert table.count("| AdaptiveH |") == len(ENVS) and "## Verdicts" in table and "nan" not in table
+    # one row per setting in the results table, one in the cost table
+    assert table.count("| AdaptiveH |") == len(ENVS) + 1 and "## Verdicts" in table and "nan" not in table
+    assert "## Cost per method" in table and "| SAC | 8 |" in table and "| PPO | 8 |" in table
+
+
+def test_cost_of_each_method_in_summary_and_printed_table(tiny_run: tuple[Path, dict]) -> None:
+    out, summary = tiny_run
+    cost = json.loads((out / "summary.json").read_text())["cost"]
+    assert list(cost) == list(PAPER_ALGOS)
+    runs = [json.loads(p.read_text()) for p in (out / "runs").glob("*.json")]
+    for algo, c in cost.items():
+        mine = [r for r in runs if r["algo"] == algo]
+        assert c["runs"] == len(mine) == 2 * len(ENVS)
+        assert c["wall_s_total"] == pytest.approx(sum(r["wall_s"] for r in mine))
+        assert c["steps_per_s"] == pytest.approx(sum(r["global_step"] for r in mine) / c["wall_s_total"])
+        assert c["peak_rss_mb_max"] == pytest.approx(max(r["peak_rss_mb"] for r in mine))
+        assert 20 < c["peak_rss_mb"] <= c["peak_rss_mb_max"] < 8000
+        assert set(c["by_env"]) == set(ENVS)
+        for env, e in c["by_env"].items():
+            assert e["runs"] == 2 and e["wall_vs_td3"] > 0, (algo, env)
+        assert c["wall_vs_td3_min"] <= c["wall_vs_td3_max"]
+    assert all(e["wall_vs_td3"] == pytest.approx(1.0) for e in cost["td3"]["by_env"].values())
+    printed = format_cost(summary).splitlines()
+    assert printed[0].startswith("Cost per method")
+    for label in ("AdaptiveH", "TD3", "DDPG", "SAC", "PPO", "RKHS fixed-H"):
+        row = next(line for line in printed if line.startswith(label + " "))
+        assert row.split()[len(label.split())] == str(2 * len(ENVS)) and "—" not in row
+
+
+@pytest.mark.parametrize(("algo", "steps"), [("sac", 300), ("ppo", 1100)])
+def test_sac_and_ppo_run_the_zoo_values_through_the_bench_run_function(
+    tmp_path: Path, algo: str, steps: int
+) -> None:
+    """Each new baseline, with the zoo's values (no overrides), through the runner's per-run function:
+    SAC past its learning_starts (100), PPO past one whole rollout (n_steps 1024) and its update."""
+    env = ENVS["pendulum_slow"]
+    spec = RunSpec("pendulum_slow", algo, 0, steps, agent_config(env, algo), env_kwargs(env, 0))
+    assert spec.config == {}  # zoo values: the defaults of learner.baselines' config classes
+    res = execute_run(spec, str(tmp_path))
+    assert "error" not in res, res.get("error")
+    run = json.loads((tmp_path / "runs" / f"pendulum_slow__{algo}__s0__{steps}.json").read_text())
+    assert run["algo"] == algo and run["global_step"] == steps and run["seed"] == 0
+    assert run["episodes"]["global_step"] == list(range(200, steps + 1, 200))  # 200-step episodes
+    assert all(-2000 < r < 0 for r in run["episodes"]["ret"])
+    assert run["wall_s"] > 0 and 20 < run["peak_rss_mb"] < 8000 and run["steps_per_s"] > 0
+    assert "noise_bound" in run["episodes"]["info"] and run["metrics"]["final_return"] is not None
 
 
 def test_figures_are_real_pngs(tiny_run: tuple[Path, dict]) -> None:
@@ -132,7 +197,7 @@ def test_finished_runs_are_never_recomputed_and_partial_sets_report(tiny_run: tu
         quick=True, out=partial, jobs=1, seeds=2, steps=STEPS, report_only=True, progress=False
     )
     assert summary["last_invocation"]["ran"] == 0
-    assert len(summary["missing_runs"]) == len(ENVS) * len(ALGOS) + 1
+    assert len(summary["missing_runs"]) == len(ENVS) * len(PAPER_ALGOS) + 1
     assert f"reach_slow__td3__s0__{STEPS}" in summary["missing_runs"]
     assert summary["groups"]["reach_slow"]["td3"]["n_runs"] == 0
     assert summary["groups"]["reach_slow"]["td3"]["final_return"]["mean"] is None
@@ -173,7 +238,7 @@ def test_bootstrap_interval() -> None:
 
 def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> None:
     plan = build_plan()
-    assert len(plan.runs) == 5 * len(ENVS) * len(ALGOS)
+    assert len(plan.runs) == 5 * len(ENVS) * len(PAPER_ALGOS)
     assert len(set(plan.runs)) == len(plan.runs)
     cheap = [r.algo in ("adaptiveh", "rkhs") and not r.env.startswith("reach") for r in plan.runs]
     n_cheap = sum(cheap)
@@ -182,7 +247,7 @@ def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> No
     assert [r.seed for r in rest] == sorted(r.seed for r in rest)
     first_seed1 = next(i for i, r in enumerate(rest) if r.seed == 1)
     assert {(r.env, r.algo) for r in rest[:first_seed1]} == {
-        (e, a) for e in ENVS for a in ALGOS if not (a in ("adaptiveh", "rkhs") and e != "reach_slow")
+        (e, a) for e in ENVS for a in PAPER_ALGOS if not (a in ("adaptiveh", "rkhs") and e != "reach_slow")
     }
     for env in ENVS:
         assert {r.steps for r in plan.runs if r.env == env} == {ENVS[env].steps}
@@ -195,3 +260,18 @@ def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> No
 def test_cli_registers_bench_paper() -> None:
     args = build_parser().parse_args(["bench", "paper", "--quick", "--jobs", "1", "--report-only"])
     assert args.quick and args.jobs == 1 and args.report_only and callable(args.func)
+    assert args.executor == "local" and args.ray_address is None
+    args = build_parser().parse_args(["bench", "paper", "--executor", "ray", "--ray-address", "head:6379"])
+    assert args.executor == "ray" and args.ray_address == "head:6379" and args.jobs is None
+    args = build_parser().parse_args(["bench", "plans", "--executor", "ray"])
+    assert args.executor == "ray" and args.ray_address is None
+    with pytest.raises(SystemExit, match="needs --executor ray"):
+        args = build_parser().parse_args(["bench", "paper", "--ray-address", "x:1", "--report-only"])
+        args.func(args)
+
+
+def test_sac_and_ppo_sit_beside_the_registry_algorithms() -> None:
+    assert PAPER_ALGOS[:6] == ("adaptiveh", "td3", "ddpg", "sac", "ppo", "rkhs")
+    assert set(ALGOS) <= set(PAPER_ALGOS)
+    with pytest.raises(ValueError, match="unknown algo"):
+        build_plan(algos=["a2c"])

@@ -123,4 +123,5 @@ def test_other_faults_hold_until_a_release_whose_recovery_succeeds():
     c.operator("release")
     c.tick(0.0)
     assert c.safety.mode == "running"
-    assert c.push_chunk(1, np.zeros((2, 3)), 0.0) == "accepted"
+    c.obey("the-learner")
+    assert c.push_chunk("the-learner", 1, np.zeros((2, 3)), 0.0) == "accepted"

@@ -19,6 +19,7 @@ from bus_probe import BusProbe, control, send_chunk
 from loopback import free_port, unique_name
 
 from deploy import messages as m
+from deploy.learner_session import LearnerSession
 from deploy.transport import Bus, ZenohConfig, open_session
 
 franky = pytest.importorskip("franky")
@@ -75,6 +76,7 @@ def stack(tmp_path_factory):
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     bus.declare_alive("learner")
     probe = Probe(bus)
+    probe.learner = LearnerSession(bus)  # the test is the learner: robot-io obeys this session
     try:
         probe.wait(lambda: len(probe.states) > 3, 60, "robot-io's first states")
     except AssertionError:
@@ -93,7 +95,7 @@ def stack(tmp_path_factory):
 
 def test_01_reset_homes_the_fr3_and_the_scripted_target_is_published(stack):
     bus, probe, _ = stack
-    reply = bus.query(m.RESET, m.ResetRequest(seed=1), timeout=30)
+    reply = probe.learner.reset(1, timeout=30)
     assert reply.ok, reply.detail
     assert reply.state.mode == m.RobotState.RUNNING
     # FR3 home (our FK: 0.307, 0, 0.487); franky-sim's PD sags a few millimetres under gravity.
@@ -105,7 +107,7 @@ def test_01_reset_homes_the_fr3_and_the_scripted_target_is_published(stack):
 def test_02_chunks_play_on_the_arm(stack):
     bus, probe, _ = stack
     y0 = probe.latest().ee_pos[1]
-    send_chunk(bus, 1, np.tile([0.0, 0.01, 0.0], (20, 1)))  # 20 cm at 1 cm per period
+    send_chunk(bus, 1, np.tile([0.0, 0.01, 0.0], (20, 1)), probe.learner.id)  # 20 cm at 1 cm per period
     probe.wait(
         lambda: probe.latest().queue_len == 0 and probe.latest().chunk_seq == 1, 10, "the chunk played"
     )
@@ -115,7 +117,7 @@ def test_02_chunks_play_on_the_arm(stack):
 
 def test_03_estop_holds_the_arm_at_once(stack):
     bus, probe, _ = stack
-    send_chunk(bus, 2, np.tile([0.0, -0.01, 0.0], (40, 1)))
+    send_chunk(bus, 2, np.tile([0.0, -0.01, 0.0], (40, 1)), probe.learner.id)
     probe.wait(lambda: np.linalg.norm(probe.latest().ee_vel) > 0.03, 10, "the arm moving")
     t_stop = time.time()  # the probe stamps arrivals on the wall clock
     control(bus, "estop")
@@ -137,7 +139,7 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(stack):
     with probe.lock:
         faults = [e for e in probe.events if m.label(e, "kind") == "driver_error"]
     assert faults and "connection_lost" in faults[0].detail and faults[0].held
-    send_chunk(bus, 3, np.tile([0.0, 0.01, 0.0], (5, 1)))
+    send_chunk(bus, 3, np.tile([0.0, 0.01, 0.0], (5, 1)), probe.learner.id)
     time.sleep(0.3)
     assert probe.latest().mode == m.RobotState.FAULT  # no command reaches a faulted arm
     control(bus, "release")  # the simulator is still down: recovery fails, the arm stays held
@@ -147,10 +149,10 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(stack):
     control(bus, "release")
     probe.wait(lambda: probe.latest().mode == m.RobotState.RUNNING, 20, "running after recovery")
     assert any("driver_error cleared: operator release" in e.detail for e in probe.events)
-    reply = bus.query(m.RESET, m.ResetRequest(seed=2), timeout=30)
+    reply = probe.learner.reset(2, timeout=30)
     assert reply.ok, reply.detail
     y0 = probe.latest().ee_pos[1]
-    send_chunk(bus, 4, np.tile([0.0, 0.01, 0.0], (10, 1)))
+    send_chunk(bus, 4, np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
     probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.05, 10, "chunks to play again")
 
 

@@ -10,6 +10,7 @@ from robot_io.config import RobotConfig
 from robot_io.controller import RobotController
 
 UP_Y = [0.0, 0.01, 0.0]
+SESSION = "the-learner"  # the one session the controller obeys here (robot_io.command_gate)
 
 
 def run(controller: RobotController, n: int, t0: float = 10.0):
@@ -32,43 +33,48 @@ def bad_plans(cfg: RobotConfig) -> dict[str, np.ndarray]:
 
 @pytest.mark.parametrize("why", list(bad_plans(RobotConfig())))
 def test_bad_plan_is_refused_whole_and_the_arm_holds(controller, why):
+    controller.obey(SESSION)
     controller.reset()
-    assert controller.push_chunk(1, np.tile(UP_Y, (20, 1)), 10.0) == "accepted"
+    assert controller.push_chunk(SESSION, 1, np.tile(UP_Y, (20, 1)), 10.0) == "accepted"
     run(controller, 4)
     controller.queue.reports()
     plan = bad_plans(controller.config)[why]
-    assert controller.push_chunk(2, plan, 10.01) == "bad_plan"
+    assert controller.push_chunk(SESSION, 2, plan, 10.01) == "bad_plan"
     after = run(controller, 12, 10.02)
     events = [e for r in after for e in r.events]
     assert [e.kind for e in events] == ["bad_plan"]
     detail = events[0].detail
     assert "chunk 2" in detail and why in detail, detail
     # Nothing of it played and the rest of the old plan was dropped, not replaced: the arm holds.
-    assert [r.reports for r in after][0] == [ChunkReport(1, 4, 16, preempted_by=-1, done=True)]
+    assert [r.reports for r in after][0] == [
+        ChunkReport(1, 4, 16, preempted_by=-1, done=True, session=SESSION)
+    ]
     assert all(r.state.played_chunk == -1 and r.applied is None for r in after)
     assert all(r.state.mode == "running" and r.state.chunk_seq == 1 for r in after)  # nothing else changed
     ee = np.array([r.state.ee_pos for r in after[4:]])
     assert np.ptp(ee, axis=0).max() < 1e-3  # m: stands where it stopped
     # The refused chunk's number was not consumed: a valid plan with it plays at once, from index 0.
-    assert controller.push_chunk(2, np.tile([0.0, -0.01, 0.0], (3, 1)), 10.05) == "accepted"
+    assert controller.push_chunk(SESSION, 2, np.tile([0.0, -0.01, 0.0], (3, 1)), 10.05) == "accepted"
     r = controller.tick(10.06)
     assert (r.state.played_chunk, r.state.played_index) == (2, 0)
     np.testing.assert_allclose(r.applied, [0.0, -0.01, 0.0])
 
 
 def test_a_step_capped_by_the_sender_is_accepted(controller):
+    controller.obey(SESSION)
     controller.reset()
     plan = cap_steps(np.array([[0.05, 0.05, 0.05], [0.0, 0.0, -0.05]]), controller.config.max_step_m)
     assert np.linalg.norm(plan, axis=1).max() == pytest.approx(controller.config.max_step_m)
-    assert controller.push_chunk(1, plan, 10.0) == "accepted"
+    assert controller.push_chunk(SESSION, 1, plan, 10.0) == "accepted"
     played = [(r.state.played_chunk, r.state.played_index) for r in run(controller, 3)]
     assert played == [(1, 0), (1, 1), (-1, -1)]
 
 
 def test_ticks_are_numbered_and_name_what_they_played(controller):
+    controller.obey(SESSION)
     controller.reset()
     t0 = controller.state().tick
-    controller.push_chunk(7, np.tile(UP_Y, (2, 1)), 10.0)
+    controller.push_chunk(SESSION, 7, np.tile(UP_Y, (2, 1)), 10.0)
     states = [r.state for r in run(controller, 3)]
     assert [s.tick for s in states] == [t0 + 1, t0 + 2, t0 + 3]
     played = [(s.played_chunk, s.played_index, s.queue_len) for s in states]

@@ -68,3 +68,18 @@ def test_target_speed_stays_bounded_and_varies():
         speeds = np.array(speeds)
         assert speeds.max() <= motion.speed_max + 1e-9 and speeds.min() >= 0.0
         assert speeds.max() - speeds.min() > 0.5 * (motion.speed_max - motion.speed_min)
+
+
+def test_the_plan_model_moves_a_diagonal_step_as_far_as_the_arm_does():
+    """A diagonal action is clipped per axis, then capped in length by the robot: the model must cap it
+    too (it once predicted 1.7x the motion, so every Reach plan overshot its own prediction)."""
+    e = gym.make("NSReach-v0", motion="static", max_episode_steps=5).unwrapped
+    obs, _ = e.reset(seed=0)
+    action = np.array([0.05, -0.05, 0.05])  # 8.7 cm asked; the arm moves 5 cm
+    predicted = e.predict_next(obs, action)
+    moved, *_ = e.step(action)
+    want, got = predicted[:3] - obs[:3], moved[:3] - obs[:3]
+    assert np.linalg.norm(want) == pytest.approx(0.05)  # not 0.087
+    assert np.linalg.norm(got) <= 0.05 + 1e-6  # the arm, from rest, lags the command (joint speed limits)
+    assert want @ got / (np.linalg.norm(want) * np.linalg.norm(got)) > 0.95  # in the same direction
+    e.close()

@@ -1,0 +1,422 @@
+"""The learner's chunks streamed to an FR3 on franka-sim: reflexes and control_command_success_rate.
+
+franka-sim (PyPI; ``scripts/franka_sim_venv.sh`` makes its own virtualenv) serves libfranka's protocol
+like franky-sim, and also emulates the FCI's communication constraints (a command that misses its 1 ms
+cycle is lost and extrapolated, 20 lost in a row are a ``communication_constraints_violation``) and its
+motion limits (position, velocity, acceleration and jerk of the commanded signal: a violation is a
+``*_discontinuity`` reflex), both enforced here. The stack is the real one: robot-io's node (its
+controller, IK and franky backend, connected to franka-sim on a loopback address) runs in this process,
+so the robot state libfranka receives can be sampled, and ``adaptiveh learn`` runs as its own process
+with ``configs/franka_sim.yaml``'s learner (AdaptiveH on the reach task against robot-io's scripted
+target), sending its chunks over Zenoh. Any fault is counted and released as an operator would, so the
+run goes on.
+
+Reported: reflexes (franka-sim's aborts, and the faults robot-io saw), ``control_command_success_rate``
+(libfranka's robot state, sampled while a motion runs; and franka-sim's own count of every commanded
+cycle), the commanded motion (peak joint speed; peak acceleration and jerk as franka-sim measured them
+against its limits, the commands a reflex rejected included), tracking, and what the learner did.
+franka-sim's own FR3 URDF is offered first: robot-io's model check refuses it (see
+``model_check_franka_sim_urdf``), so the run serves the FR3 URDF franky-sim ships (the kinematics and
+limits of robot-io's ``fr3`` description) on franka-sim's physics (franky-sim's FR3 MJCF) and limit
+tables. Merged under ``franka_sim_stream`` into results/franka_bench.json.
+
+    bash scripts/franka_sim_venv.sh                 # once
+    python bench/franka_sim_stream.py               # 10 minutes (--minutes N)
+    python bench/franka_sim_stream.py --quick       # about a minute, to try
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from deploy.config import load_stack_config  # noqa: E402
+from deploy.robot_io_node import RobotIONode  # noqa: E402
+from robot_io.backends.franky_model import ModelMismatch  # noqa: E402
+from robot_io.backends.franky_sim import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
+from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+
+HOST = "127.0.0.64"  # franka-sim's loopback address (libfranka always dials port 1337)
+SAMPLE_HZ = 100.0
+
+
+def fifo_threads() -> list[int]:
+    """Real-time priorities of this process's SCHED_FIFO threads (fields 40-41 of /proc/.../stat)."""
+    found = []
+    for task in Path("/proc/self/task").iterdir():
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2 :].split()
+        if fields[38] == "1":
+            found.append(int(fields[37]))
+    return found
+
+
+def free_endpoint() -> str:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+
+
+def pct(x: Any, q: float) -> float | None:
+    x = np.asarray(x, float)
+    return round(float(np.percentile(x, q)), 5) if x.size else None
+
+
+def model_check_with_franka_sim_urdf(host: str) -> dict[str, Any]:
+    """Connect robot-io's franky backend (model fr3) to franka-sim serving its own FR3 URDF."""
+    from robot_io.backends.franky_backend import FrankyBackend
+
+    with FrankaSimServer(host):
+        try:
+            b = FrankyBackend(RobotConfig(backend="franka", model="fr3", franka=FrankaConfig(ip=host)))
+        except ModelMismatch as exc:
+            return {"accepted": False, "error": str(exc)}
+        b.close()
+        return {"accepted": True, "report": str(b.report)}
+
+
+class Sampler(threading.Thread):
+    """libfranka's robot state, as robot-io's franky connection receives it, at SAMPLE_HZ."""
+
+    def __init__(self, node: RobotIONode) -> None:
+        super().__init__(daemon=True, name="franka-sim-sampler")
+        self.node = node
+        self.stop = threading.Event()
+        self.rows: list[tuple] = []
+
+    def run(self) -> None:
+        period = 1.0 / SAMPLE_HZ
+        next_t = time.monotonic()
+        while not self.stop.is_set():
+            robot = self.node.controller.backend.robot
+            try:
+                s = robot.state
+                self.rows.append(
+                    (
+                        time.monotonic(),
+                        s.time.to_sec(),
+                        float(s.control_command_success_rate),
+                        s.robot_mode.name,
+                        np.array(s.q_d),
+                        np.array(s.dq_d),
+                        np.array(s.ddq_d),
+                        np.array(s.q),
+                    )
+                )
+            except Exception:  # between a lost connection and its recovery
+                pass
+            next_t += period
+            time.sleep(max(0.0, next_t - time.monotonic()))
+
+
+class Counts:
+    """What went through robot-io's controller: chunks, played actions, resets, safety events."""
+
+    def __init__(self, node: RobotIONode) -> None:
+        c = node.controller
+        self.lock = threading.Lock()
+        self.chunks = self.played = self.ticks = self.resets = 0
+        self.events: list[tuple[float, str, str]] = []
+        push, tick, react, reset = c.push_chunk, c.tick, c.react, c.reset
+
+        def on_push(*args: Any, **kw: Any) -> Any:
+            with self.lock:
+                self.chunks += 1
+            return push(*args, **kw)
+
+        def on_result(result: Any, ticked: bool) -> Any:
+            with self.lock:
+                self.ticks += ticked
+                self.played += ticked and result.applied is not None
+                self.events += [(time.monotonic(), e.kind, e.detail) for e in result.events]
+            return result
+
+        def on_reset(*args: Any, **kw: Any) -> Any:
+            with self.lock:
+                self.resets += 1
+            return reset(*args, **kw)
+
+        c.push_chunk = on_push
+        c.tick = lambda now: on_result(tick(now), True)
+        c.react = lambda now: on_result(react(now), False)
+        c.reset = on_reset
+
+
+def stack_config(args: argparse.Namespace, tmp: Path) -> Path:
+    cfg = yaml.safe_load((ROOT / args.config).read_text())
+    rate = cfg["robot"]["control_rate_hz"]
+    cfg["name"] = f"fsim{uuid.uuid4().hex[:10]}"
+    cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
+    cfg["robot"]["franka"]["ip"] = args.host
+    cfg["learner"].update(
+        steps=int(args.minutes * 60 * rate * 2) + 1000,  # more than the run can take: it is stopped
+        checkpoint_dir=str(tmp / "learner"),
+        checkpoint_every=10**9,
+    )
+    cfg.pop("monitor", None)
+    cfg.pop("recording", None)
+    path = tmp / "franka_sim_stream.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def motion_stats(rows: list[tuple], node: RobotIONode) -> dict[str, Any]:
+    moving = [r for r in rows if r[3] == "Move"]
+    if len(moving) < 3:
+        return {"samples_in_motion": len(moving)}
+    rate = np.array([r[2] for r in moving])
+    started = rate > 0  # 0 until a motion's first command is in (libfranka: "zero if no loop is running")
+    q_d = np.array([r[4] for r in moving])
+    dq_d = np.array([r[5] for r in moving])
+    ddq_d = np.array([r[6] for r in moving])
+    q = np.array([r[7] for r in moving])
+    kin = node.controller.kin
+    vlim = kin.description.limits.velocity
+    sub = slice(None, None, max(1, len(moving) // 20000))  # FK on at most ~20k samples
+    ee_err = np.array(
+        [
+            np.linalg.norm(kin.ee_position(a) - kin.ee_position(b))
+            for a, b in zip(q_d[sub], q[sub], strict=True)
+        ]
+    )
+    ee_speed = np.array(
+        [np.linalg.norm(kin.ee_velocity(a, b)) for a, b in zip(q_d[sub], dq_d[sub], strict=True)]
+    )
+    wall = rows[-1][0] - rows[0][0]
+    return {
+        "sim_realtime_factor": round((rows[-1][1] - rows[0][1]) / wall, 3) if wall > 0 else None,
+        "samples": len(rows),
+        "samples_in_motion": len(moving),
+        "control_command_success_rate_libfranka": {
+            "samples": int(started.sum()),
+            "samples_at_a_motion_start_reading_0": int((~started).sum()),
+            "mean": round(float(rate[started].mean()), 5),
+            "min": round(float(rate[started].min()), 3),
+            "p1": pct(rate[started], 1),
+            "p50": pct(rate[started], 50),
+            "fraction_of_samples_below_1": round(float(np.mean(rate[started] < 1.0)), 4),
+            "fraction_of_samples_below_0.95": round(float(np.mean(rate[started] < 0.95)), 4),
+        },
+        "commanded_joint_speed_peak_rad_s": np.round(np.abs(dq_d).max(0), 3).tolist(),
+        "commanded_joint_speed_peak_fraction_of_limit": round(float((np.abs(dq_d) / vlim).max()), 3),
+        "commanded_joint_acceleration_peak_rad_s2": np.round(np.abs(ddq_d).max(0), 2).tolist(),
+        "commanded_ee_speed_m_s": {
+            "p50": pct(ee_speed, 50),
+            "p99": pct(ee_speed, 99),
+            "max": pct(ee_speed, 100),
+        },
+        "tracking_ee_error_m": {"p50": pct(ee_err, 50), "p99": pct(ee_err, 99), "max": pct(ee_err, 100)},
+        "tracking_joint_error_rad_max": round(float(np.abs(q_d - q).max()), 4),
+    }
+
+
+def summary_line(elapsed: float, total: float, counts: Counts, server: FrankaSimServer, rows: list) -> str:
+    st = server.stats
+    recent = [r[2] for r in rows[-int(SAMPLE_HZ * 10) :] if r[3] == "Move"]
+    rtf = ""
+    if len(rows) > SAMPLE_HZ * 5:
+        a, b = rows[-int(SAMPLE_HZ * 5)], rows[-1]
+        rtf = f"  sim x{(b[1] - a[1]) / max(1e-6, b[0] - a[0]):.2f}"
+    with counts.lock:
+        c = f"chunks {counts.chunks}  actions {counts.played}  resets {counts.resets}"
+    lost = f"lost cycles {st.get('lost_cycles', 0)}/{st.get('commanded_cycles', 0)}"
+    return (
+        f"[{int(elapsed) // 60:2d}:{int(elapsed) % 60:02d}/{int(total) // 60}:{int(total) % 60:02d}] {c}"
+        f"  success rate (10 s) min {min(recent) if recent else float('nan'):.2f}  {lost}"
+        f" (max {st.get('max_consecutive_lost', 0)} in a row)  reflexes {len(st.get('reflexes', []))}{rtf}"
+    )
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    print(f"model check against franka-sim's own FR3 URDF ({args.host}) ...", flush=True)
+    model_check = model_check_with_franka_sim_urdf(args.host)
+    print(
+        f"  {'accepted' if model_check['accepted'] else 'refused'}: {model_check.get('error', '')}",
+        flush=True,
+    )
+    total = args.minutes * 60.0
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        cfg_path = stack_config(args, tmp)
+        cfg = load_stack_config(cfg_path)
+        fifo = args.sim_fifo_priority or None
+        server = FrankaSimServer(args.host, urdf=franky_sim_fr3_urdf(), fifo_priority=fifo).start()
+        print(
+            f"franka-sim on {args.host}:1337 (communication constraints and motion limits enforced)",
+            flush=True,
+        )
+        node = learner = None
+        try:
+            node = RobotIONode(cfg)  # connects robot-io's franky backend to franka-sim (model check passes)
+            counts = Counts(node)
+            sampler = Sampler(node)
+            node.start()
+            sampler.start()
+            log = open(tmp / "learner.log", "w")
+            cli = [sys.executable, "-m", "deploy.cli"]
+            learner = subprocess.Popen(
+                [*cli, "learn", "--config", str(cfg_path), "--log-level", "WARNING"],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=ROOT,
+            )
+            t0 = time.monotonic()
+            releases = 0
+            next_report = t0 + args.report_s
+            while (now := time.monotonic()) - t0 < total:
+                if learner.poll() is not None:
+                    raise RuntimeError("the learner exited:\n" + (tmp / "learner.log").read_text()[-3000:])
+                if node.controller.safety.mode == "fault":  # the operator's release: recover, go on
+                    time.sleep(0.5)
+                    node.controller.operator("release")
+                    node.wake()
+                    releases += 1
+                if now >= next_report:
+                    print(summary_line(now - t0, total, counts, server, sampler.rows), flush=True)
+                    next_report += args.report_s
+                time.sleep(0.2)
+            wall = time.monotonic() - t0
+            fifo_robot_io = fifo_threads()
+            learner.terminate()
+            try:
+                learner.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                learner.kill()
+            sampler.stop.set()
+            sampler.join(timeout=5)
+            time.sleep(2 * server.stats_period_s)  # franka-sim's last counts
+            stats = dict(server.stats)
+            learner_log = (tmp / "learner.log").read_text()
+        finally:
+            if learner is not None:
+                log.close()
+            if learner is not None and learner.poll() is None:
+                learner.kill()
+            if node is not None:
+                node.stop()
+                node.close()
+            server.kill()
+    rows = sampler.rows
+    faults = [(t - t0, k, d) for t, k, d in counts.events if k == "driver_error"]
+    reflexes = stats.get("reflexes", [])
+    t_server0 = time.time() - (time.monotonic() - t0)
+    cycles, lost = stats.get("commanded_cycles", 0), stats.get("lost_cycles", 0)
+    return {
+        "command": "python bench/franka_sim_stream.py"
+        + (f" --minutes {args.minutes:g}" if args.minutes != 10 else "")
+        + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else ""),
+        "simulator": "franka-sim 1.1.7 (MuJoCo 3.2, franky-sim's FR3 MJCF), --enforce-comm-constraints and "
+        "--enforce-motion-limits; franky-control 2.0.0 (libfranka 0.21.2)",
+        "served_urdf": "franky-sim's fr3_clean.urdf (franka-sim's own is refused by the model check, below)",
+        "model_check_franka_sim_urdf": model_check,
+        "route": "robot-io node (controller, IK, franky backend) in the bench process; `adaptiveh learn` "
+        f"as its own process ({args.config}: AdaptiveH, reach task, chunks over Zenoh)",
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()},
+        "scheduling": f"franka-sim SCHED_FIFO {args.sim_fifo_priority} (0: SCHED_OTHER); robot-io: "
+        f"{len(fifo_robot_io)} SCHED_FIFO threads (priorities {sorted(set(fifo_robot_io))}: franky's 1 kHz "
+        "loop), the rest SCHED_OTHER; no PREEMPT_RT kernel here",
+        "wall_clock_s": round(wall, 1),
+        "reflexes": len(reflexes),
+        "reflex_reasons": [{"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes],
+        "faults_seen_by_robot_io": [{"t_s": round(t, 1), "detail": d.splitlines()[0]} for t, _, d in faults],
+        "operator_releases": releases,
+        "control_command_success_rate_franka_sim": {
+            "commanded_cycles": cycles,
+            "lost_cycles": lost,
+            "overall": round(1 - lost / cycles, 5) if cycles else None,
+            "max_consecutive_lost": stats.get("max_consecutive_lost"),
+            "connections": stats.get("connections"),
+        },
+        "peak_fraction_of_limit_franka_sim": stats.get("peak_fraction_of_limit"),
+        **motion_stats(rows, node),
+        "stack": {
+            "chunks_received": counts.chunks,
+            "actions_played": counts.played,
+            "control_ticks": counts.ticks,
+            "control_rate_hz": round(counts.ticks / wall, 2),
+            "resets": counts.resets,
+            "safety_events": dict(Counter(k for _, k, _ in counts.events)),
+            "learner_log_tail": learner_log.strip().splitlines()[-5:],
+        },
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--quick", action="store_true", help="about a minute, to try (same as --minutes 1)")
+    ap.add_argument("--config", default="configs/franka_sim.yaml")
+    ap.add_argument("--host", default=HOST, help="franka-sim's loopback address")
+    ap.add_argument("--out", default="results/franka_bench.json", help="merged under franka_sim_stream")
+    ap.add_argument("--report-s", type=float, default=15.0, help="progress every this many seconds")
+    ap.add_argument(
+        "--sim-fifo-priority",
+        type=int,
+        default=99,
+        help="run franka-sim SCHED_FIFO at this priority, as the arm is a real-time machine of its own "
+        "(0: SCHED_OTHER, sharing the cores with everything else)",
+    )
+    args = ap.parse_args()
+    if args.quick:
+        args.minutes = 1.0
+    os.chdir(ROOT)
+    result = run(args)
+    path = Path(args.out)
+    merged = json.loads(path.read_text()) if path.exists() else {}
+    merged.pop("franka_sim_streaming", None)  # the old "not run" placeholder
+    merged["franka_sim_stream"] = result
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(merged, indent=2) + "\n")
+    r = result
+    rate = r.get("control_command_success_rate_libfranka", {})
+    fs = r["control_command_success_rate_franka_sim"]
+    print(
+        f"\nfranka-sim stream, {r['wall_clock_s'] / 60:.1f} min ({r['stack']['chunks_received']} chunks, "
+        f"{r['stack']['actions_played']} actions played, {r['stack']['resets']} resets)"
+    )
+    print(
+        f"  reflexes: {r['reflexes']}"
+        + "".join(f"\n    {x['t_s']} s: {x['reason']}" for x in r["reflex_reasons"])
+    )
+    print(
+        f"  control_command_success_rate (libfranka, while moving): mean {rate.get('mean')}, "
+        f"min {rate.get('min')}, p1 {rate.get('p1')}"
+    )
+    print(
+        f"  franka-sim: {fs['lost_cycles']} of {fs['commanded_cycles']} commanded cycles lost "
+        f"(overall {fs['overall']}, at most {fs['max_consecutive_lost']} in a row; 20 is a reflex)"
+    )
+    peaks = r["peak_fraction_of_limit_franka_sim"]
+    print(f"  peak commanded acceleration / jerk, fraction of the FR3's limit: {peaks}")
+    print(
+        f"  tracking (end effector, commanded vs measured): {r.get('tracking_ee_error_m')}; "
+        f"simulator at x{r.get('sim_realtime_factor')} real time"
+    )
+    print(f"merged under franka_sim_stream into {path}")
+    return 0 if r["reflexes"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

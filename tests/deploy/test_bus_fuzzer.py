@@ -1,0 +1,161 @@
+"""A black-box bus fuzzer against ``adaptiveh up`` (issue #13): for ``ADAPTIVEH_FUZZ_S`` seconds (12 in the
+default run) a stranger on the bus publishes mutated, truncated, replayed and oversized copies of the
+stack's own live traffic on every key it saw, and random bytes on ``control``.
+
+Afterwards: every part is the same process as before (nothing crashed or was restarted), every periodic
+key flows, every chunk the arm played is one the learner signed, the learner took at most one step per
+control tick, and no state shows the arm outside its workspace box or joint limits or moving more than
+``robot.max_step_m`` in a tick. Genuine messages are told apart with the stack's key (the stranger has
+no token)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict, deque
+
+import numpy as np
+import pytest
+from bus_probe import BusProbe
+from stack_helpers import PARTS, parts_of, write_stack_config
+
+from deploy import messages as m
+from deploy.config import load_stack_config
+from deploy.signing import authentic, mac_key
+from deploy.transport import Bus, open_session
+from robot_io.description import RobotDescription
+
+FUZZ_S = float(os.environ.get("ADAPTIVEH_FUZZ_S", "12"))
+TOL_M = 0.01  # m: PyBullet tracking slack around the box and the step bound
+
+
+def mutate(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    kind = ("random", "truncated", "flipped", "replayed", "oversized")[int(rng.integers(5))]
+    if kind == "random":
+        return kind, rng.bytes(int(rng.integers(1, 400)))
+    if kind == "truncated":
+        return kind, data[: int(rng.integers(0, max(len(data), 1)))]
+    if kind == "flipped":
+        out = bytearray(data or b"\0")
+        for _ in range(int(rng.integers(1, 5))):
+            out[int(rng.integers(len(out)))] ^= 1 << int(rng.integers(8))
+        return kind, bytes(out)
+    if kind == "replayed":
+        return kind, data
+    copies = int(rng.integers(20, 200))  # concatenated copies: repeated fields run long (up to ~200 kB)
+    return kind, data * max(2, min(copies, 200_000 // max(len(data), 1)))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
+    path, cfg = write_stack_config(tmp_path, "fz", steps=100000)
+    stack = load_stack_config(path)
+    up = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "up", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    token = up.stdout.readline().strip().removeprefix("operator token: ")
+    key = mac_key(token)
+    deadline = time.monotonic() + 60
+    while set(parts_of(path)) != set(PARTS):  # join only once the supervisor holds the loopback hub
+        assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(parts_of(path))}"
+        time.sleep(0.5)
+    bus = Bus(open_session(stack.zenoh), stack.name)  # the stranger: no token
+    probe = BusProbe(bus)
+    states = probe.collect(m.STATE, arrival=False)
+    chunks = probe.collect(m.CMD_CHUNK, arrival=False)
+    telemetry = probe.collect(m.TELEMETRY_LEARNER)
+    flows = {t: probe.collect(t) for t in (m.STATE, m.TARGET, m.CAMERA_ANNOTATED)}
+    seen: dict[str, deque[bytes]] = defaultdict(lambda: deque(maxlen=8))
+
+    def capture(sample) -> None:
+        with probe.lock:
+            seen[str(sample.key_expr)].append(sample.payload.to_bytes())
+
+    sub = bus.session.declare_subscriber(f"{m.NAMESPACE}/{stack.name}/**", capture)
+    sent: dict[str, int] = defaultdict(int)
+    try:
+        genuine = lambda: [t for _, t in telemetry if authentic(t, key)]  # noqa: E731
+        probe.wait(lambda: any(t.global_step > 20 for t in genuine()), 120, "the learner stepping")
+        before = parts_of(path)
+        assert set(before) == set(PARTS)
+        step0 = max(t.global_step for t in genuine())
+        stop, rng = threading.Event(), np.random.default_rng(0)
+
+        def fuzz() -> None:
+            control_key = m.CONTROL.key(stack.name)
+            while not stop.is_set():
+                with probe.lock:
+                    traffic = {k: list(v) for k, v in seen.items()} | {control_key: [b""]}
+                for k, copies in traffic.items():
+                    kind, data = mutate(copies[int(rng.integers(len(copies)))], rng)
+                    if k == control_key:
+                        kind, data = "random", rng.bytes(int(rng.integers(1, 60)))
+                    bus.session.put(k, data)
+                    sent[kind] += 1
+                time.sleep(0.03)  # ~500 messages a second over the stack's ~15 keys
+
+        thread = threading.Thread(target=fuzz, daemon=True)
+        t0 = time.time()
+        thread.start()
+        time.sleep(FUZZ_S)
+        stop.set()
+        thread.join()
+        t1 = time.time()
+        time.sleep(3.0)
+        # Every part is the process it was: nothing crashed, nothing was restarted.
+        assert up.poll() is None, "adaptiveh up ended"
+        assert parts_of(path) == before
+        # Every periodic key flows after the fuzzing (state 20 Hz, target, annotated image, learner progress).
+        with probe.lock:
+            late = {t.name: sum(1 for at, _ in got if at > t1 + 1.0) for t, got in flows.items()}
+        assert late["state"] > 20 and late["target"] > 5 and late["camera/annotated"] >= 1, late
+        with probe.lock:  # the learner still steps (its progress, signed, every 20 steps)
+            assert [t for at, t in telemetry if at > t1 + 1.0 and authentic(t, key)], "the learner stopped"
+        with probe.lock:
+            mine = [s for s in states if authentic(s, key)]
+            signed = {(c.session, c.seq, c.stamp) for c in chunks if authentic(c, key)}
+        step1 = max(t.global_step for t in genuine())
+    finally:
+        sub.undeclare()
+        bus.close()
+        up.send_signal(signal.SIGTERM)
+        try:
+            up.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            up.kill()
+        for pid in parts_of(path).values():
+            os.kill(pid, signal.SIGKILL)
+    total = sum(sent.values())
+    print(f"fuzzer: {total} messages on {len(seen)} keys in {t1 - t0:.1f} s: {dict(sent)}")
+    assert total > 1000
+    # The arm obeyed one learner session, and played only chunks it signed.
+    assert len({s.session for s in mine if s.session}) == 1
+    played = {(s.session, s.played_chunk, s.played_stamp) for s in mine if s.played_chunk >= 0}
+    assert played and played <= signed, "the arm played a chunk the learner did not sign"
+    # At most one learner step per control tick over the fuzzing window.
+    ticks = [s.tick for s in mine if t0 <= s.stamp <= t1]
+    assert step1 - step0 <= (max(ticks) - min(ticks)) + int(4.0 * cfg["robot"]["control_rate_hz"])
+    # No commanded motion outside the limits: inside the box, the joint limits, one step per tick.
+    lo, hi = np.array(cfg["robot"]["workspace"]["lo"]), np.array(cfg["robot"]["workspace"]["hi"])
+    ee = np.array([s.ee_pos for s in mine])
+    assert np.all(ee >= lo - TOL_M) and np.all(ee <= hi + TOL_M)
+    limits = RobotDescription("panda").limits
+    q = np.array([s.q for s in mine])
+    assert np.all(q >= limits.lower - 1e-3) and np.all(q <= limits.upper + 1e-3)
+    by_tick = {s.tick: s for s in mine}  # a tick that played an action moved at most one step (a reset
+    moves = [  # teleports the simulated arm home between ticks: not a played action)
+        np.linalg.norm(np.subtract(s.ee_pos, by_tick[t - 1].ee_pos))
+        for t, s in by_tick.items()
+        if t - 1 in by_tick and s.played_chunk >= 0
+    ]
+    assert max(moves) <= cfg["robot"]["max_step_m"] + TOL_M
+    result = json.loads((tmp_path / "learner" / "result.json").read_text())
+    assert result["global_step"] >= step1
