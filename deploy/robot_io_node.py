@@ -36,9 +36,9 @@ from deploy.node import Node
 from deploy.signing import ForgedMessage, Fresh, authentic
 from robot_io.command_gate import TakeoverRefused
 from robot_io.controller import ArmState, RobotController, TickResult
+from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
-BAD_EVENT_EVERY_S = 1.0  # bad messages past the first in this window are counted into the next event
 
 
 def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
@@ -78,7 +78,7 @@ class RobotIONode(Node):
         self.period = settings.robot.period
         self.watch_peers = watch_peers
         self._fresh_reset, self._fresh_control = Fresh(), Fresh()
-        self._last_bad_event, self._bad_unreported = -np.inf, 0
+        self._bad_events = EventThrottle("bad messages")
         super().__init__(settings.name, settings.zenoh, token=control_token)
         self.mac_key = self.bus.signing_key  # with a token, only signed chunks, resets and controls
         self._pub_state = self.bus.publisher(m.STATE)
@@ -110,17 +110,10 @@ class RobotIONode(Node):
             self.controller.refuse_plan("bad_message", f"{topic}: {exc}")
             self._wake.set()  # the control thread publishes the event and the dropped rest at once
             return
-        # A flood of bad bytes must not flood the operator: one event per second, with the count since.
-        now = time.monotonic()
-        with self._lock:
-            if now - self._last_bad_event < BAD_EVENT_EVERY_S:
-                self._bad_unreported += 1
-                return
-            more, self._bad_unreported, self._last_bad_event = self._bad_unreported, 0, now
-        detail = f"{topic}: {exc}" + (
-            f" (and {more} more bad messages since the last report)" if more else ""
-        )
-        self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
+        with self._lock:  # a flood of bad bytes must not flood the operator
+            detail = self._bad_events.detail(f"{topic}: {exc}", time.monotonic())
+        if detail is not None:
+            self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
     def _on_chunk(self, msg: m.ActionChunk) -> None:
         actions = m.action_array(msg)  # decode already checked the length

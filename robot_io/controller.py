@@ -21,9 +21,8 @@ from robot_io.description import RobotDescription
 from robot_io.ik import DifferentialIK
 from robot_io.kinematics import Kinematics
 from robot_io.recovery import RecoveryPolicy
-from robot_io.safety import Safety, SafetyRecord
+from robot_io.safety import EventThrottle, Safety, SafetyRecord
 
-REFUSAL_EVENT_EVERY_S = 1.0  # refused chunks past the first in this window are counted into the next event
 UNREACHABLE_M = 0.01  # IK ending this far from its goal with no progress means the goal is out of reach
 STEP_TOLERANCE = 1e-9  # relative: a step capped to exactly max_step_m by the sender is not "above" it
 
@@ -65,8 +64,7 @@ class RobotController:
         )
         self.queue = ActionQueue()
         self.gate = CommandGate(config.max_chunk_seq_gap)
-        self._last_refusal_event = -np.inf
-        self._refusals_unreported = 0
+        self._refusals = EventThrottle("refused")
         self.safety = Safety(config.workspace, config.watchdog_timeout_s)
         self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
@@ -145,13 +143,9 @@ class RobotController:
             self._report_refusal(detail, now)
 
     def _report_refusal(self, detail: str, now: float) -> None:
-        if now - self._last_refusal_event < REFUSAL_EVENT_EVERY_S:
-            self._refusals_unreported += 1
-            return
-        if self._refusals_unreported:
-            detail += f" (and {self._refusals_unreported} more refused since the last report)"
-        self.safety.report("foreign_command", detail)
-        self._last_refusal_event, self._refusals_unreported = now, 0
+        shown = self._refusals.detail(detail, now)
+        if shown is not None:
+            self.safety.report("foreign_command", shown)
 
     def learner_alive(self, session: str, alive: bool) -> None:
         """A learner session's liveliness token came or went (only a live session may take over)."""

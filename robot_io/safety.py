@@ -25,6 +25,25 @@ class SafetyRecord:
     held: bool
 
 
+class EventThrottle:
+    """One event per window: a flood of bad input must not flood the operator (or the recording); the
+    next event let through says how many were held back meanwhile."""
+
+    def __init__(self, what: str, every_s: float = 1.0) -> None:
+        self.what, self.every_s = what, every_s
+        self.last, self.held = -np.inf, 0
+
+    def detail(self, detail: str, now: float) -> str | None:
+        """``detail`` (with the count held back) to report now, or None to hold this one back."""
+        if now - self.last < self.every_s:
+            self.held += 1
+            return None
+        if self.held:
+            detail += f" (and {self.held} more {self.what} since the last report)"
+        self.last, self.held = now, 0
+        return detail
+
+
 class Safety:
     def __init__(self, workspace: WorkspaceBox, watchdog_timeout_s: float) -> None:
         self.lo = np.asarray(workspace.lo, float)
