@@ -22,6 +22,7 @@ mode is the closed-loop learner.
 from __future__ import annotations
 
 import pickle
+from collections import deque
 from pathlib import Path
 
 import gymnasium as gym
@@ -78,6 +79,10 @@ class AdaptiveH:
             cfg.critic_p0,
             cfg.critic,
             len(low),
+            np.asarray(cfg.action_bandwidth, float),
+            cfg.residual_baseline,
+            cfg.visit_memory,
+            cfg.residual_fit,
         )
         threshold = cfg.retreat_threshold
         if threshold is None:
@@ -95,6 +100,10 @@ class AdaptiveH:
         self.rng = np.random.default_rng(seed)
         self.log = RunLog()
         self.nonfinite_skipped = 0
+        # advantage_lambda > 0: samples whose λ-advantage is still accruing [s, score, advantage, weight],
+        # and the matured (state, gradient) pairs that the next segment update applies.
+        self._pending: deque[list] = deque()
+        self._matured: list[tuple[np.ndarray, np.ndarray]] = []
         self._obs: np.ndarray | None = None
         self._ep_return = 0.0
         self._ep_len = 0
@@ -118,6 +127,7 @@ class AdaptiveH:
         if all(callable(getattr(base, name, None)) for name in ("send", "advance", "queued")):
             return model, base
         return model, QueuedChannel(env, self.config.latency_steps)
+
     # -- acting ---------------------------------------------------------------------------------
     def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         s = self.normalize(obs)
@@ -225,14 +235,13 @@ class AdaptiveH:
             self.nonfinite_skipped += 1
             return self._close_segment("episode_end" if episode_over else "retreat")
         score = self.policy.score(s, raw)
-        advantage = self.critic.update(s, reward, s_next, terminated, score)
-        g = self.grad_scale * advantage * score
-        norm = float(np.linalg.norm(g))
-        if not np.isfinite(norm):
+        g, advantage = self._gradient(s, raw, score, reward, s_next, terminated)
+        if not np.isfinite(float(np.linalg.norm(g))):
             self.nonfinite_skipped += 1
             return self._close_segment("retreat")
-        if norm > self.config.max_grad_norm:
-            g *= self.config.max_grad_norm / norm
+        g = self._shape(s, g)
+        if self.config.advantage_lambda > 0.0:
+            self._accrue(s, score, advantage, episode_over)
         retreat = self.retreat.push(s, g, predicted, reached)
         if retreat:
             return self._close_segment("retreat")
@@ -242,11 +251,75 @@ class AdaptiveH:
             return self._close_segment("episode_end")
         return None
 
+    def _shape(self, s: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The per-sample gradient as the update applies it: norm clipped at ``max_grad_norm``, scaled by the
+        local step ``n0 / (n0 + n(s))`` when ``visit_step`` is on."""
+        norm = float(np.linalg.norm(g))
+        if norm > self.config.max_grad_norm:
+            g = g * (self.config.max_grad_norm / norm)
+        if self.config.visit_step is not None:
+            n0 = self.config.visit_step
+            g = g * (n0 / (n0 + self.critic.visits(s)))
+        return g
+
+    def _accrue(self, s: np.ndarray, score: np.ndarray, delta: float, episode_over: bool) -> None:
+        """GAE(λ) in the forward view: each pending sample's advantage gains ``(γλ)^(t-k) δ_t``; it matures
+        when that weight falls below 1 % or its episode ends (the sum is then cut, no bootstrap past
+        the last ``δ``), and its gradient ``c Â^λ_k score_k`` waits for the next segment update."""
+        decay = self.config.gamma * self.config.advantage_lambda
+        for entry in self._pending:
+            entry[2] += entry[3] * delta
+            entry[3] *= decay
+        self._pending.append([s, score, delta, decay])
+        self._mature(everything=episode_over)
+
+    def _mature(self, everything: bool) -> None:
+        while self._pending and (everything or self._pending[0][3] < 0.01):
+            s_k, score_k, adv_k, _ = self._pending.popleft()
+            self._matured.append((s_k, self._shape(s_k, self.grad_scale * adv_k * score_k)))
+
+    def _gradient(
+        self,
+        s: np.ndarray,
+        raw: np.ndarray,
+        score: np.ndarray,
+        reward: float,
+        s_next: np.ndarray,
+        terminated: bool,
+    ) -> tuple[np.ndarray, float]:
+        """Fit the critic on one transition; return the per-step functional gradient ``g_t`` (f's units)
+        and the advantage it was formed from."""
+        cfg = self.config
+        policy = self.policy
+        sigma = policy.sigma / policy.half_range  # the policy's std in scaled action units
+        if cfg.critic != "q":
+            advantage = self.critic.update(s, reward, s_next, terminated, score)
+            if cfg.policy_gradient == "expected":
+                return self.grad_scale * self.critic.expected_gradient(s, None, sigma), advantage
+            return self.grad_scale * advantage * score, advantage
+        action = (np.clip(raw, policy.low, policy.high) - policy.centre) / policy.half_range
+        mean = np.tanh(policy.f(s))
+        next_mean = np.tanh(policy.f(s_next))
+        advantage = self.critic.update(s, reward, s_next, terminated, None, action, mean, next_mean, sigma)
+        if cfg.policy_gradient == "expected":
+            # D(s) = ∂/∂μ̃ E Q̂ in scaled units is the paper's Σ⁻¹-weighted action integral in f's units.
+            return self.grad_scale * self.critic.expected_gradient(s, mean, sigma), advantage
+        return self.grad_scale * advantage * score, advantage
+
     def _close_segment(self, reason: str) -> SegmentRecord | None:
         states, grads = self.retreat.states, self.retreat.grads
         if not states:
             return None
-        self.policy.update(states, grads, self.config.alpha, self.config.weight_decay)
+        cfg = self.config
+        if cfg.advantage_lambda > 0.0:  # the samples whose λ-advantage is complete, not the segment's own
+            matured, self._matured = self._matured, []
+            if matured:
+                upd_states, upd_grads = zip(*matured, strict=True)
+                self.policy.update(
+                    list(upd_states), list(upd_grads), cfg.alpha, cfg.weight_decay, cfg.mean_limit
+                )
+        else:
+            self.policy.update(states, grads, cfg.alpha, cfg.weight_decay, cfg.mean_limit)
         record = SegmentRecord(
             index=len(self.log.segments),
             global_step=self.log.global_step,
@@ -267,6 +340,7 @@ class AdaptiveH:
         self._ep_return, self._ep_len = 0.0, 0
 
     def _finish_episode(self, info: dict) -> None:
+        self._mature(everything=True)  # an episode's advantages never reach into the next one
         scalars = _info_scalars(info)
         success = scalars.get("is_success", scalars.get("success"))
         self.log.episodes.append(
@@ -300,6 +374,8 @@ class AdaptiveH:
             "obs": self._obs,
             "ep": (self._ep_return, self._ep_len, self._episode_seed),
             "nonfinite_skipped": self.nonfinite_skipped,
+            "pending": [list(e) for e in self._pending],
+            "matured": list(self._matured),
             "env": env_state,
         }
 
@@ -314,6 +390,8 @@ class AdaptiveH:
         self._obs = state["obs"]
         self._ep_return, self._ep_len, self._episode_seed = state["ep"]
         self.nonfinite_skipped = state["nonfinite_skipped"]
+        self._pending = deque([list(e) for e in state.get("pending", [])])
+        self._matured = list(state.get("matured", []))
         set_state = getattr(self.env.unwrapped, "set_state", None)
         if state["env"] is not None and callable(set_state):
             self.env.reset()  # wrappers (gym.make's OrderEnforcing) refuse step() before a reset

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from common.config import Section
 from learner.retreat import RetreatMode
@@ -25,7 +25,17 @@ class AdaptiveHConfig(Section):
     bandwidth: Positive | list[Positive] = 0.4  # on states normalised to [-1, 1]; one or one per dimension
     policy_budget: int = Field(300, ge=1)
     policy_ald: float = Field(0.05, ge=0, lt=1)
-    critic: Literal["value", "compatible"] = "value"
+    # value: V(s) by RLS-TD(0), the TD error is the advantage. compatible: V + the paper's compatible
+    # features. q: kernel LSTD-Q on (state, action) with a product kernel (learner/critic.py).
+    critic: Literal["value", "compatible", "q"] = "value"
+    action_bandwidth: Positive | list[Positive] = 1.0  # critic q: on actions scaled to [-1, 1]
+    # sampled: eq. 8 per sample, g = c·Â(s,a)·Σ⁻¹(a - h(s)). expected (critic q or compatible): eq. 9's
+    # D(s), the action integral done in closed form on Q̂, g = c·D̂(s_t) at each visited state.
+    policy_gradient: Literal["sampled", "expected"] = "sampled"
+    # value critic: subtract B(s) ≈ E_a[δ | s], fitted to past TD errors (residual_fit; learner/critic.py),
+    # from the advantage; the number is the fit's memory per step (0.999: ~1000 steps). None: plain δ.
+    residual_baseline: float | None = Field(None, gt=0, lt=1)
+    residual_fit: Literal["kernel_mean", "least_squares"] = "kernel_mean"  # how B(s) is fitted
     critic_budget: int = Field(300, ge=1)
     critic_ald: float = Field(0.05, ge=0, lt=1)
     critic_forgetting: float = Field(0.999, gt=0, le=1)
@@ -38,11 +48,39 @@ class AdaptiveHConfig(Section):
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)
     weight_decay: float = Field(1e-3, ge=0)
     max_grad_norm: float = Field(100.0, gt=0)
+    # Local step size: a sample at s moves f by alpha·n0/(n0 + n(s)), n(s) the samples that fell near s
+    # (forgotten at visit_memory per step; learner/critic.py visits()): averaging where data is plentiful.
+    # None: the same alpha everywhere. Value and compatible critics.
+    visit_step: float | None = Field(None, gt=0)
+    visit_memory: float = Field(0.9999, gt=0, le=1)
+    # GAE(λ) advantages for the value critic: Σ_k (γλ)^k δ_{t+k} in place of δ_t (less critic bias, more
+    # variance); a sample's gradient enters the update once its weight (γλ)^k < 1 %. 0: the TD error.
+    advantage_lambda: float = Field(0.0, ge=0, le=1)
+    # |f| past which a step no longer pushes the squashed mean outward (learner/policy.py); None: unbounded.
+    # These options are off by default: NS Pendulum needs them, NS CartPole does worse with them
+    # (bench/learner_diagnosis.py, configs/pendulum.yaml).
+    mean_limit: float | None = Field(None, gt=0)
     use_discount_factor: bool = True  # the paper's 1/(1-γ) in eq. 8
     # closed_loop: every action sampled at the state it acts in. plan: a segment is a committed plan
     # (learner/plans.py) of up to h_max (AdaptiveH) or fixed_h (RKHS) actions over model-predicted states.
     execution: Literal["closed_loop", "plan"] = "closed_loop"
     latency_steps: int = Field(0, ge=0)  # plan mode in-process: a new plan takes effect this many steps late
+
+    @model_validator(mode="after")
+    def _options_fit_the_critic(self) -> AdaptiveHConfig:
+        if self.visit_step is not None and self.critic == "q":
+            raise ValueError("visit_step counts visits on the state dictionary: critic value or compatible")
+        if self.advantage_lambda > 0 and (self.critic != "value" or self.policy_gradient != "sampled"):
+            raise ValueError(
+                "advantage_lambda sums TD errors: it needs critic: value, policy_gradient: sampled"
+            )
+        if self.residual_baseline is not None and self.critic != "value":
+            raise ValueError("residual_baseline is for the value critic (critic: value)")
+        if self.policy_gradient == "expected" and self.critic == "value":
+            raise ValueError(
+                "policy_gradient: expected integrates Q̂ over actions; it needs critic: q or compatible"
+            )
+        return self
 
 
 class SB3Config(Section):

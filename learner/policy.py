@@ -51,13 +51,40 @@ class RKHSGaussianPolicy:
         """
         return self.half_range * self.sigma_inv2 * (raw_action - self.mean(s))
 
+    def bound_gradient(self, s: np.ndarray, g: np.ndarray, limit: float | None) -> np.ndarray:
+        """``g`` without the components that would push ``|f(s)|`` further past ``limit``.
+
+        The straight-through score keeps pushing ``f`` where the mean already sits at the box edge, and
+        nothing but weight decay pulls it back: measured on NS Pendulum, ``|f|`` reached a median of 40
+        (90th percentile 470) at the visited states within 10k steps, the mean a frozen bang-bang map
+        that one sample (a step of at most ``alpha · max_grad_norm`` = 2) cannot move. Dropping the
+        outward component past ``limit`` (``tanh(3) = 0.995``) projects the step onto ``|f(s)| ≤ limit``
+        at the sample's state; ``None`` keeps the unbounded straight-through step.
+        """
+        if limit is None:
+            return g
+        f = self.f(s)
+        outward = (np.abs(f) >= limit) & (np.sign(g) == np.sign(f))
+        return np.where(outward, 0.0, g) if outward.any() else g
+
     def log_prob(self, s: np.ndarray, raw_action: np.ndarray) -> float:
         z = (raw_action - self.mean(s)) / self.sigma
         return float(-0.5 * z @ z - np.log(self.sigma).sum() - 0.5 * len(z) * np.log(2 * np.pi))
 
-    def update(self, states: list[np.ndarray], grads: list[np.ndarray], step: float, decay: float) -> None:
-        """``f ← (1 - step·decay) f + step Σ_t k(s_t,·) g_t`` then sparsify (inside ``RKHSFunction.add``)."""
+    def update(
+        self,
+        states: list[np.ndarray],
+        grads: list[np.ndarray],
+        step: float,
+        decay: float,
+        limit: float | None = None,
+    ) -> None:
+        """``f ← (1 - step·decay) f + step Σ_t k(s_t,·) g_t`` then sparsify (inside ``RKHSFunction.add``).
+
+        ``limit``: each term is bounded against ``f`` as the terms before it left it
+        (:meth:`bound_gradient`), so a segment cannot wind ``f`` up either.
+        """
         if decay > 0.0:
             self.f.scale(max(1.0 - step * decay * len(states), 0.0))
         for s, g in zip(states, grads, strict=True):
-            self.f.add(s, step * g)
+            self.f.add(s, step * self.bound_gradient(s, g, limit))

@@ -108,4 +108,4 @@ def test_critic_dictionary_stays_under_budget_with_bounded_arrays(mode):
 
 def test_critic_rejects_an_unknown_mode():
     with pytest.raises(ValueError, match="mode"):
-        KLSTDCritic(GaussianKernel(0.3, 1), 0.9, 10, 0.1, mode="q")
+        KLSTDCritic(GaussianKernel(0.3, 1), 0.9, 10, 0.1, mode="bogus")

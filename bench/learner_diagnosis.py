@@ -1,0 +1,634 @@
+"""Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
+
+Three parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+
+1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
+   - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
+     before the critic fits the step) with the discounted return that followed in the same episode;
+   - every ``--every`` steps, a rollout probe at ``--probe-states`` states the learner visited in the
+     last 2000 steps, the policy frozen: the true advantage ``A(s,a) = Q(s,a) - V(s)`` of a sampled
+     action and the true ascent direction ``dQ/da`` at the mean (central difference ±σ), both from
+     batched pendulum rollouts with common random numbers; against them the learner's advantage
+     (corr, sign agreement where the truth is 2 standard errors from 0) and its expected gradient
+     ``E_a[g | s]`` (sign agreement), the per-sample signal-to-noise ``|E g| / std g`` of its gradient,
+     the same with the oracle state baseline ``E_a[δ | s]`` removed (what the critic's Bellman
+     residual costs), the size of that residual, and the share of the TD target's variance that the
+     observation noise puts there;
+   - the policy: ``|f|`` at the visited states (``f`` the RKHS function inside the tanh; ``|f| > 3``
+     is a saturated mean), executed actions clipped at the box, the gradient norm and how often
+     ``max_grad_norm`` clips it; dictionary sizes and how well they cover the upright region (mean
+     ALD residual of a grid of near-upright states: 0 covered, 1 not).
+2. ``performance`` (NS Pendulum, ``--seeds`` seeds, not instrumented): final return (mean of the
+   episodes in the last 10 % of steps, as in results/paper), steps to -400, wall-clock of ``learn``,
+   peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
+3. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+   ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
+   differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
+   the before-learner's episodes exactly (it should where its settings are the defaults).
+
+Variants, each on top of the env's configs/<env>.yaml agent section as ``adaptiveh bench paper`` runs
+it: ``before`` the learner as it was (every option this work added, off); ``after`` the learner as
+configured now (``AFTER``: the defaults, which keep the options off, plus NS Pendulum's settings);
+``options`` the NS Pendulum options (``OPTIONS``, without its sigma) on another env, the evidence for
+keeping them out of the defaults.
+
+    python bench/learner_diagnosis.py                       # everything (~16 min on 2 cores)
+    python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
+Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import resource
+import sys
+import time
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+# The learner as it was before issue #15: every option this work added, off.
+BEFORE: dict[str, Any] = {
+    "critic": "value",
+    "policy_gradient": "sampled",
+    "mean_limit": None,
+    "visit_step": None,
+    "residual_baseline": None,
+    "advantage_lambda": 0.0,
+}
+# The learner options this work added, as NS Pendulum uses them (the "after" learner there); the config
+# defaults keep them off because they hurt NS CartPole (the ``options`` variant of the checks shows it).
+OPTIONS: dict[str, Any] = {
+    "mean_limit": 3.0,
+    "visit_step": 20.0,
+    "residual_baseline": 0.999,
+    "residual_fit": "least_squares",
+}
+# The learner as it is now, per env: the config defaults plus, on NS Pendulum, the options and a wider
+# exploration (sigma 0.5 of the half-range). These are the settings to put in configs/<env>.yaml.
+AFTER: dict[str, dict[str, Any]] = {
+    "pendulum_slow": {**OPTIONS, "sigma": 0.5},
+    "cartpole_slow": {},
+    "cartpole_fast": {},
+    "reach_slow": {},
+}
+UPRIGHT = (0.3, 1.0)  # |θ| (rad) and |θ̇| (rad/s) of the "upright" region
+
+
+def _variant_config(env_key: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The env's configs/<env>.yaml agent section with a variant's overrides on top."""
+    from experiments.plan import ENVS, agent_config
+
+    return {**agent_config(ENVS[env_key], "adaptiveh"), **overrides}
+
+
+def _overrides(env_key: str, variant: str) -> dict[str, Any]:
+    if variant == "before":
+        return dict(BEFORE)
+    if variant == "options":
+        return dict(OPTIONS)
+    return dict(AFTER.get(env_key, {}))
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _build(env_key: str, seed: int, cfg: dict[str, Any]):
+    from experiments.execute import make_env
+    from experiments.plan import ENVS, env_kwargs
+    from learner.registry import make_agent
+
+    env = make_env(ENVS[env_key], env_kwargs(ENVS[env_key], seed))
+    return env, make_agent("adaptiveh", env, seed, cfg)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Batched NS Pendulum under the learner's frozen policy (the env's own constants and reward)
+# ---------------------------------------------------------------------------------------------------
+
+
+def _pendulum_step(th: np.ndarray, w: np.ndarray, u: np.ndarray):
+    from sim.pendulum import NSPendulum as P
+    from sim.pendulum import angle_normalize
+
+    cost = angle_normalize(th) ** 2 + 0.1 * w**2 + 0.001 * u**2
+    accel = 3 * P.g / (2 * P.length) * np.sin(th) + 3.0 / (P.m * P.length**2) * u
+    w = np.clip(w + accel * P.dt, -P.max_speed, P.max_speed)
+    return th + w * P.dt, w, -cost
+
+
+def _observe(th: np.ndarray, w: np.ndarray, b: float, rng: np.random.Generator) -> np.ndarray:
+    obs = np.stack([np.cos(th), np.sin(th), w], 1)
+    noise = rng.uniform(-b, b, obs.shape) if b > 0 else 0.0  # drawn always: streams stay aligned
+    return obs + noise if b > 0 else obs
+
+
+def _batch_f(agent, obs: np.ndarray) -> np.ndarray:
+    """``f`` (inside the tanh) of the policy at a batch of raw observations: (n, action_dim)."""
+    s = (obs - agent.normalize.centre) / agent.normalize.scale
+    f = agent.policy.f
+    if len(f) == 0:
+        return np.zeros((len(obs), len(agent.policy.low)))
+    return agent.kernel(s, f.dictionary.centers) @ f.weights
+
+
+def _batch_mean(agent, obs: np.ndarray) -> np.ndarray:
+    return agent.policy.centre + agent.policy.half_range * np.tanh(_batch_f(agent, obs))
+
+
+def _returns(agent, th, w, first_u, b, horizon, seed) -> np.ndarray:
+    """Discounted returns from true states ``(th, w)``: ``first_u`` first, then the agent's policy."""
+    rng = np.random.default_rng(seed)
+    sig, lo, hi = agent.policy.sigma[0], agent.policy.low[0], agent.policy.high[0]
+    gamma = agent.config.gamma
+    g, disc = np.zeros(len(th)), 1.0
+    for t in range(horizon):
+        obs = _observe(th, w, b, rng)
+        eps = rng.standard_normal(len(th))
+        u = np.clip(first_u if t == 0 else _batch_mean(agent, obs)[:, 0] + sig * eps, lo, hi)
+        th, w, r = _pendulum_step(th, w, u)
+        g += disc * r
+        disc *= gamma
+    return g
+
+
+def _learner_gradient(agent, s, raw, r, s_next) -> tuple[float, np.ndarray, float]:
+    """(advantage, per-sample gradient before clipping, state-only part) the learner would form for one
+    transition, with its critic frozen (no fit): the same formulas as ``AdaptiveH._gradient``."""
+    cfg, pol, critic = agent.config, agent.policy, agent.critic
+    score = pol.score(s, raw)
+    sigma = pol.sigma / pol.half_range
+    mean = np.tanh(pol.f(s))
+    if cfg.critic == "q":
+        a = (np.clip(raw, pol.low, pol.high) - pol.centre) / pol.half_range
+        v = critic.value(s, mean, sigma)
+        adv = critic.q_value(s, a) - v
+        if cfg.policy_gradient == "expected":
+            return adv, agent.grad_scale * critic.expected_gradient(s, mean, sigma), 0.0
+        return adv, agent.grad_scale * adv * score, 0.0
+    if cfg.critic == "compatible":
+        adv = critic.advantage(s, score)
+        if cfg.policy_gradient == "expected":
+            return adv, agent.grad_scale * critic.expected_gradient(s, None, sigma), 0.0
+        return adv, agent.grad_scale * adv * score, 0.0
+    base = critic.residual(s)
+    td = r + cfg.gamma * critic.value(s_next) - critic.value(s)
+    return td - base, agent.grad_scale * (td - base) * score, td
+
+
+def _batch_value(agent, obs: np.ndarray) -> np.ndarray:
+    """The value critic's ``V̂`` at a batch of raw observations."""
+    s = (obs - agent.normalize.centre) / agent.normalize.scale
+    c = agent.critic
+    return agent.kernel(s, c.dictionary.centers) @ c.theta if len(c) else np.zeros(len(obs))
+
+
+def gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, n_act, seed) -> dict:
+    """Bias and noise of GAE(λ) advantages from the value critic, at each λ: a batch of ``n_act`` sampled
+    actions per state, each followed by the frozen policy; ``Â^λ = Σ_k (γλ)^k δ_{t+k}`` with the
+    critic's ``δ``. Reports the sign agreement / corr of ``E_a[c Â^λ score]`` with the true ``dQ/da`` and
+    the per-sample SNR, the quantities the λ trade-off is about (λ = 0 is the TD error)."""
+    gamma, sig = agent.config.gamma, agent.policy.sigma[0]
+    lo, hi = agent.policy.low[0], agent.policy.high[0]
+    horizon = int(min(300, np.ceil(np.log(0.01) / np.log(gamma * 0.95))))
+    rng = np.random.default_rng(seed)
+    n = len(th0)
+    th, w = np.repeat(th0, n_act), np.repeat(w0, n_act)
+    a = np.repeat(mu0, n_act) + sig * rng.standard_normal(n * n_act)
+    v_prev = np.repeat(_batch_value(agent, obs0), n_act)
+    deltas = np.zeros((horizon, n * n_act))
+    u = np.clip(a, lo, hi)
+    for t in range(horizon):
+        th, w, r = _pendulum_step(th, w, u)
+        obs = _observe(th, w, b, rng)
+        v = _batch_value(agent, obs)
+        deltas[t] = r + gamma * v - v_prev
+        v_prev = v
+        u = np.clip(_batch_mean(agent, obs)[:, 0] + sig * rng.standard_normal(len(th)), lo, hi)
+    score = agent.policy.half_range[0] * (a - np.repeat(mu0, n_act)) / sig**2
+    out = {}
+    for lam in (0.0, 0.5, 0.8, 0.9, 0.95):
+        adv = ((gamma * lam) ** np.arange(horizon)) @ deltas
+        g = (agent.grad_scale * adv * score).reshape(n, n_act)
+        d = g.mean(1)
+        out[str(lam)] = {
+            "gradient_sign_agreement": float(np.mean(np.sign(d[d_sig]) == np.sign(d_true[d_sig])))
+            if d_sig.any()
+            else None,
+            "gradient_corr": float(np.corrcoef(d, d_true)[0, 1]),
+            "per_sample_snr": float(np.median(np.abs(d) / (g.std(1) + 1e-12))),
+        }
+    return out
+
+
+def rollout_probe(agent, states: np.ndarray, b: float, n_states: int, reps: int, seed: int) -> dict:
+    """The rollout measurements of the module docstring at ``n_states`` of ``states`` (rows th, θ̇)."""
+    cfg = agent.config
+    horizon = int(min(300, np.ceil(np.log(0.01) / np.log(cfg.gamma))))
+    rng = np.random.default_rng(seed)
+    pick = states[rng.choice(len(states), min(n_states, len(states)), replace=False)]
+    n = len(pick)
+    th0, w0 = pick[:, 0], pick[:, 1]
+    obs0 = _observe(th0, w0, b, rng)
+    mu0 = _batch_mean(agent, obs0)[:, 0]
+    sig, lo, hi = agent.policy.sigma[0], agent.policy.low[0], agent.policy.high[0]
+    a0 = mu0 + sig * rng.standard_normal(n)
+    rep = lambda x: np.repeat(x, reps)  # noqa: E731
+    th_r, w_r = rep(th0), rep(w0)
+    base_u = rep(mu0) + sig * rng.standard_normal(n * reps)
+    run = lambda u: _returns(agent, th_r, w_r, u, b, horizon, seed + 1).reshape(n, reps)  # noqa: E731
+    gq, gv, gp, gm = run(rep(a0)), run(base_u), run(rep(mu0 + sig)), run(rep(mu0 - sig))
+    a_true, a_se = (gq - gv).mean(1), (gq - gv).std(1) / np.sqrt(reps)
+    fd = (gp - gm) / (2 * sig)
+    d_true, d_se = fd.mean(1), fd.std(1) / np.sqrt(reps)
+
+    n_act = 48
+    a_hat, d_hat, snr, snr_oracle, resid, noise_share = [], [], [], [], [], []
+    for i in range(n):
+        s = agent.normalize(obs0[i])
+        th1, w1, r1 = _pendulum_step(th0[i : i + 1], w0[i : i + 1], np.clip(a0[i : i + 1], lo, hi))
+        s1 = agent.normalize(_observe(th1, w1, b, rng)[0])
+        a_hat.append(_learner_gradient(agent, s, a0[i : i + 1], float(r1[0]), s1)[0])
+        acts = mu0[i] + sig * rng.standard_normal(n_act)
+        th1, w1, r1 = _pendulum_step(np.full(n_act, th0[i]), np.full(n_act, w0[i]), np.clip(acts, lo, hi))
+        o1, o1_clean = _observe(th1, w1, b, rng), _observe(th1, w1, 0.0, rng)
+        rows = [
+            _learner_gradient(agent, s, acts[j : j + 1], float(r1[j]), agent.normalize(o1[j]))
+            for j in range(n_act)
+        ]
+        g = np.array([row[1][0] for row in rows])
+        d_hat.append(g.mean())
+        snr.append(abs(g.mean()) / (g.std() + 1e-12))
+        if cfg.critic == "value":
+            td = np.array([row[2] for row in rows])
+            score = np.array([agent.policy.score(s, acts[j : j + 1])[0] for j in range(n_act)])
+            g_oracle = agent.grad_scale * (td - td.mean()) * score
+            snr_oracle.append(abs(g_oracle.mean()) / (g_oracle.std() + 1e-12))
+            resid.append(abs(td.mean()))
+            v1 = np.array([agent.critic.value(agent.normalize(o)) for o in o1])
+            v1c = np.array([agent.critic.value(agent.normalize(o)) for o in o1_clean])
+            noise_share.append(np.var(cfg.gamma * (v1 - v1c)) / (np.var(r1 + cfg.gamma * v1) + 1e-12))
+    a_hat, d_hat = np.array(a_hat), np.array(d_hat)
+    a_sig, d_sig = np.abs(a_true) > 2 * a_se, np.abs(d_true) > 2 * d_se
+
+    def agree(est, truth, mask):
+        return float(np.mean(np.sign(est[mask]) == np.sign(truth[mask]))) if mask.any() else None
+
+    med = lambda x: float(np.median(x)) if len(x) else None  # noqa: E731
+    gae = None
+    if cfg.critic == "value":
+        gae = gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, 32, seed + 7)
+    return {
+        "gae_lambda": gae,
+        "states": n,
+        "noise_bound": b,
+        "advantage_corr": float(np.corrcoef(a_hat, a_true)[0, 1]),
+        "advantage_sign_agreement": agree(a_hat, a_true, a_sig),
+        "advantage_abs_learner": float(np.abs(a_hat).mean()),
+        "advantage_abs_true": float(np.abs(a_true).mean()),
+        "gradient_sign_agreement": agree(d_hat, d_true, d_sig),
+        "gradient_corr": float(np.corrcoef(d_hat, d_true)[0, 1]),
+        "significant_states": int(d_sig.sum()),
+        "per_sample_snr": med(snr),
+        "per_sample_snr_oracle_baseline": med(snr_oracle),
+        "bellman_residual_abs": med(resid),
+        "obs_noise_share_of_target_var": med(noise_share),
+    }
+
+
+def _coverage(agent) -> dict[str, float]:
+    """Mean ALD residual of a grid of upright states against each dictionary (0: covered, 1: not)."""
+    ths, ws = np.linspace(-UPRIGHT[0], UPRIGHT[0], 7), np.linspace(-UPRIGHT[1], UPRIGHT[1], 5)
+    grid = np.array([[np.cos(t), np.sin(t), w] for t in ths for w in ws])
+    out = {}
+    for name, dic in (("policy", agent.policy.f.dictionary), ("critic", agent.critic.dictionary)):
+        res = []
+        for o in grid:
+            s = agent.normalize(o)
+            if dic.kernel.dim > len(s):  # the state-action critic: the upright states at the mean action
+                s = np.concatenate([s, np.tanh(agent.policy.f(s))])
+            res.append(dic.ald(s)[2])
+        out[name] = float(np.mean(res))
+    return out
+
+
+def probe_run(args: tuple[str, dict, int, int, int, int, int]) -> dict:
+    """One instrumented NS Pendulum run with rollout probes every ``every`` steps."""
+    variant, overrides, seed, steps, every, n_states, reps = args
+    cfg = _variant_config("pendulum_slow", overrides)
+    env, agent = _build("pendulum_slow", seed, cfg)
+    base = env.unwrapped
+    rec: dict[str, list] = {k: [] for k in ("v", "r", "gnorm", "f", "clipped", "episode")}
+    inner = agent._gradient
+
+    def recorded(s, raw, score, reward, s_next, terminated):
+        c = agent.critic
+        if agent.config.critic == "q":
+            sig = agent.policy.sigma / agent.policy.half_range
+            v = c.value(s, np.tanh(agent.policy.f(s)), sig)
+        else:
+            v = c.value(s)
+        g, adv = inner(s, raw, score, reward, s_next, terminated)
+        rec["v"].append(v)
+        rec["r"].append(reward)
+        rec["gnorm"].append(float(np.linalg.norm(g)))
+        rec["f"].append(float(np.abs(agent.policy.f(s)).max()))
+        rec["clipped"].append(bool(np.any((raw < agent.policy.low) | (raw > agent.policy.high))))
+        rec["episode"].append(len(agent.log.episodes))
+        return g, adv
+
+    agent._gradient = recorded
+    states, probes = [], []
+    t0 = time.perf_counter()
+    for t in range(1, steps + 1):
+        agent.step_env()
+        if base.state is not None:
+            states.append(np.array(base.state, float))
+        if t % every == 0:
+            recent = np.array(states[-2000:])
+            recent[:, 0] = (recent[:, 0] + np.pi) % (2 * np.pi) - np.pi
+            p = rollout_probe(agent, recent, base.noise_schedule.value, n_states, reps, seed * 1000 + t)
+            lo = max(0, len(rec["f"]) - every)
+            f = np.array(rec["f"][lo:])
+            gn = np.array(rec["gnorm"][lo:])
+            eps = [e.ret for e in agent.log.episodes if e.global_step > t - every]
+            p.update(
+                step=t,
+                return_mean=float(np.mean(eps)) if eps else None,
+                f_abs_percentiles={str(q): float(np.percentile(f, q)) for q in (10, 50, 90)},
+                frac_mean_saturated=float(np.mean(f > 3.0)),
+                frac_actions_clipped=float(np.mean(rec["clipped"][lo:])),
+                grad_norm_percentiles={str(q): float(np.percentile(gn, q)) for q in (10, 50, 90)},
+                frac_grad_clipped=float(np.mean(gn >= agent.config.max_grad_norm * (1 - 1e-9))),
+                dictionary={"policy": len(agent.policy.f), "critic": len(agent.critic)},
+                upright_coverage_ald_residual=_coverage(agent),
+                frac_upright=float(
+                    np.mean((np.abs(recent[:, 0]) < UPRIGHT[0]) & (np.abs(recent[:, 1]) < UPRIGHT[1]))
+                ),
+                H_mean=float(np.mean([s.H for s in agent.log.segments if s.global_step > t - every] or [0])),
+            )
+            probes.append(p)
+    wall = time.perf_counter() - t0
+    critic_mc = _critic_vs_mc(rec, agent.config.gamma, every, steps)
+    return {
+        "variant": variant,
+        "seed": seed,
+        "config": cfg,
+        "wall_s_with_probes": wall,
+        "probes": probes,
+        "critic_vs_mc": critic_mc,
+    }
+
+
+def _critic_vs_mc(rec: dict, gamma: float, every: int, steps: int) -> list[dict]:
+    """Explained variance / correlation of the online ``V̂(s_t)`` against the discounted return that
+    followed in its episode (only steps whose tail beyond the episode's end weighs < 1 %)."""
+    v, r, ep = np.array(rec["v"]), np.array(rec["r"]), np.array(rec["episode"])
+    tail = int(np.ceil(np.log(0.01) / np.log(gamma)))
+    g = np.full(len(r), np.nan)
+    for e in np.unique(ep):
+        idx = np.nonzero(ep == e)[0]
+        acc, out = 0.0, np.zeros(len(idx))
+        for k in range(len(idx) - 1, -1, -1):
+            acc = r[idx[k]] + gamma * acc
+            out[k] = acc
+        keep = len(idx) - tail
+        if len(idx) >= 200 and keep > 0:  # complete (truncated) episodes only
+            g[idx[:keep]] = out[:keep]
+    blocks = []
+    for lo in range(0, steps, every):
+        m = np.isfinite(g[lo : lo + every])
+        if m.sum() < 20:
+            continue
+        gg, vv = g[lo : lo + every][m], v[lo : lo + every][m]
+        blocks.append(
+            {
+                "steps": [lo, lo + every],
+                "explained_variance": float(1 - np.var(gg - vv) / np.var(gg)),
+                "corr": float(np.corrcoef(gg, vv)[0, 1]),
+                "rmse": float(np.sqrt(np.mean((gg - vv) ** 2))),
+                "mc_return_mean": float(gg.mean()),
+            }
+        )
+    return blocks
+
+
+# ---------------------------------------------------------------------------------------------------
+# Plain runs: performance and the other envs
+# ---------------------------------------------------------------------------------------------------
+
+
+def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
+    from experiments.metrics import run_metrics
+    from experiments.plan import ENVS
+
+    env_key, variant, overrides, seed, steps = args
+    cfg = _variant_config(env_key, overrides)
+    env, agent = _build(env_key, seed, cfg)
+    rss, wall, cpu = {}, 0.0, 0.0
+    marks = sorted({steps // 4, steps // 2, steps})
+    done = 0
+    for m in marks:
+        t0, c0 = time.perf_counter(), time.process_time()
+        agent.learn(m - done)
+        wall += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+        done = m
+        rss[str(m)] = _rss_mb()
+    log = agent.log
+    metrics = run_metrics(
+        [e.global_step for e in log.episodes], [e.ret for e in log.episodes], steps, ENVS[env_key].threshold
+    )
+    env.close()
+    return {
+        "env": env_key,
+        "variant": variant,
+        "seed": seed,
+        "steps": steps,
+        "final_return": metrics["final_return"],
+        "returns_digest": hashlib.sha256(np.asarray([e.ret for e in log.episodes]).tobytes()).hexdigest()[
+            :16
+        ],
+        "steps_to_threshold": metrics["steps_to_threshold"],
+        "reached": metrics["reached"],
+        "curve": metrics["curve"],
+        "wall_s": wall,
+        "cpu_s": cpu,  # this process's CPU time in learn: what the run costs, whatever else the machine ran
+        "steps_per_s": steps / wall,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "rss_mb_at_step": rss,
+        "dictionary": {"policy": len(agent.policy.f), "critic": len(agent.critic)},
+        "config": cfg,
+    }
+
+
+def _pool_map(fn, tasks: list, jobs: int) -> list:
+    if jobs <= 1:
+        return [fn(t) for t in tasks]
+    with get_context("spawn").Pool(jobs, maxtasksperchild=1, initializer=_one_thread) as pool:
+        return pool.map(fn, tasks, chunksize=1)
+
+
+def _one_thread() -> None:
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+def _group(runs: list[dict], key: str = "final_return") -> dict:
+    from experiments.stats import bootstrap_mean
+
+    return bootstrap_mean([r[key] for r in runs])
+
+
+def summarize(out: dict) -> dict:
+    from experiments.stats import bootstrap_diff
+
+    summary: dict[str, Any] = {}
+    perf = out.get("performance") or []
+    for variant in ("before", "after"):
+        rs = [r for r in perf if r["variant"] == variant]
+        if not rs:
+            continue
+        summary[f"pendulum_{variant}"] = {
+            "final_return": _group(rs),
+            "per_seed": [round(r["final_return"], 1) for r in rs],
+            "seeds_at_or_above_-250": sum(r["final_return"] >= -250 for r in rs),
+            "seeds_reaching_-400": sum(r["reached"] for r in rs),
+            "wall_s_mean": float(np.mean([r["wall_s"] for r in rs])),
+            "cpu_s_mean": float(np.mean([r.get("cpu_s", np.nan) for r in rs])),
+            "peak_rss_mb_mean": float(np.mean([r["peak_rss_mb"] for r in rs])),
+        }
+    for env_key in sorted({r["env"] for r in out.get("checks") or []}):
+        rs = [r for r in out["checks"] if r["env"] == env_key]
+        by = {v: [r for r in rs if r["variant"] == v] for v in ("before", "after", "options")}
+        b = [r["final_return"] for r in by["before"]]
+        entry: dict[str, Any] = {}
+        for v in ("before", "after", "options"):
+            if not by[v]:
+                continue
+            entry[v] = _group(by[v])
+            entry[v]["per_seed"] = [round(r["final_return"], 1) for r in by[v]]
+            entry[v]["wall_s_mean"] = float(np.mean([r["wall_s"] for r in by[v]]))
+            if v != "before" and b:
+                entry[f"{v}_minus_before"] = bootstrap_diff([r["final_return"] for r in by[v]], b)
+        if by["after"] and by["before"]:
+            digests = {r["seed"]: r["returns_digest"] for r in by["before"]}
+            entry["after_identical_to_before"] = all(
+                digests.get(r["seed"]) == r["returns_digest"] for r in by["after"]
+            )
+        summary[env_key] = entry
+    probes = out.get("probe") or []
+    for variant in ("before", "after"):
+        ps = [p for run in probes if run["variant"] == variant for p in run["probes"]]
+        if not ps:
+            continue
+        keys = (
+            "advantage_corr",
+            "advantage_sign_agreement",
+            "gradient_sign_agreement",
+            "gradient_corr",
+            "per_sample_snr",
+            "per_sample_snr_oracle_baseline",
+            "bellman_residual_abs",
+            "frac_mean_saturated",
+            "frac_grad_clipped",
+        )
+        summary[f"probe_{variant}"] = {
+            k: float(np.mean([p[k] for p in ps if p.get(k) is not None]))
+            if any(p.get(k) is not None for p in ps)
+            else None
+            for k in keys
+        }
+        summary[f"probe_{variant}"]["f_abs_median"] = float(
+            np.mean([p["f_abs_percentiles"]["50"] for p in ps])
+        )
+        mc = [b for run in probes if run["variant"] == variant for b in run["critic_vs_mc"][1:]]
+        summary[f"probe_{variant}"]["critic_explained_variance_vs_mc"] = (
+            float(np.mean([b["explained_variance"] for b in mc])) if mc else None
+        )
+    return summary
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--parts", default="probe,performance,checks")
+    p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
+    p.add_argument("--check-variants", default="before,after,options")
+    p.add_argument("--steps", type=int, default=20_000)
+    p.add_argument("--every", type=int, default=4_000)
+    p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--probe-seeds", type=int, default=2)
+    p.add_argument("--probe-states", type=int, default=96)
+    p.add_argument("--probe-reps", type=int, default=16)
+    p.add_argument("--check-seeds", type=int, default=3)
+    p.add_argument("--check-envs", default="cartpole_slow,cartpole_fast,reach_slow")
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--after", default=None, help="JSON: replace the after-settings of every env (exploring)")
+    p.add_argument("--out", default=str(ROOT / "results" / "learner_diagnosis.json"))
+    p.add_argument("--merge", action="store_true", help="keep the parts of --out that this call does not run")
+    a = p.parse_args()
+    if a.after is not None:
+        global AFTER
+        AFTER = {k: json.loads(a.after) for k in AFTER}
+    parts, variants = a.parts.split(","), a.variants.split(",")
+    old: dict[str, Any] = {}
+    if a.merge and Path(a.out).is_file():
+        old = json.loads(Path(a.out).read_text())
+    out: dict[str, Any] = {
+        **{k: old[k] for k in ("probe", "performance", "checks") if k in old},
+        "commands": [c for c in old.get("commands", [old.get("command")]) if c]
+        + ["python bench/learner_diagnosis.py " + " ".join(sys.argv[1:])],
+        "before_overrides": BEFORE,
+        "after_overrides": AFTER,
+        "options_overrides": OPTIONS,
+        "started_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
+    }
+    from experiments.execute import code_version
+    from experiments.plan import ENVS
+
+    out["code"] = code_version()
+    if "probe" in parts:
+        tasks = [
+            (v, _overrides("pendulum_slow", v), s, a.steps, a.every, a.probe_states, a.probe_reps)
+            for v in variants
+            for s in range(a.probe_seeds)
+        ]
+        out["probe"] = _pool_map(probe_run, tasks, a.jobs)
+    if "performance" in parts:
+        tasks = [
+            ("pendulum_slow", v, _overrides("pendulum_slow", v), s, a.steps)
+            for v in variants
+            for s in range(a.seeds)
+        ]
+        out["performance"] = _pool_map(plain_run, tasks, a.jobs)
+    if "checks" in parts:
+        envs = [e for e in a.check_envs.split(",") if e]
+        cvs = a.check_variants.split(",")
+        tasks = [
+            (e, v, _overrides(e, v), s, ENVS[e].steps)
+            for e in envs
+            for v in cvs
+            for s in range(a.check_seeds)
+        ]
+        out["checks"] = _pool_map(plain_run, tasks, a.jobs)
+    out["summary"] = summarize(out)
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(out, indent=1, default=float))
+    print(json.dumps(out["summary"], indent=1))
+
+
+if __name__ == "__main__":
+    main()
