@@ -100,6 +100,8 @@ class RecordingConfig(Section):
     enabled: bool = True
     dir: str = "runs/stack/recordings"
     exclude: tuple[str, ...] = ()
+    # Written to disk at least this often: a supervisor killed outright loses at most this much.
+    flush_s: float = Field(1.0, gt=0, le=60)
 
 
 class SupervisorConfig(Section):
@@ -108,6 +110,17 @@ class SupervisorConfig(Section):
     max_restarts: int = Field(3, ge=0)  # per part; the run ends when a part has used them all
     backoff_s: float = Field(1.0, gt=0)  # wait before the first restart, doubled each time
     backoff_max_s: float = Field(30.0, gt=0)
+    # Linux niceness (0..19) per part: under CPU contention robot-io's control loop and the learner come
+    # before the camera's rendering (measured: starved robot-io ticks delayed e-stops past 2 periods).
+    nice: dict[Literal["robot_io", "vision", "monitor", "learner"], int] = {"vision": 5}
+
+    @field_validator("nice")
+    @classmethod
+    def _niceness(cls, value: dict[str, int]) -> dict[str, int]:
+        bad = {part: n for part, n in value.items() if not 0 <= n <= 19}
+        if bad:
+            raise ValueError(f"niceness must be 0..19 (raising priority needs privileges): {bad}")
+        return value
 
 
 class StackConfig(Section):

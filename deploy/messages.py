@@ -58,10 +58,16 @@ def key(robot: str, topic: str) -> str:
 
 @dataclass(frozen=True)
 class Topic(Generic[M]):
-    """A key suffix bound to the one message type that travels on it."""
+    """A key suffix bound to the one message type that travels on it, and how urgently it travels:
+    ``urgent`` topics (the operator's commands, safety events) go at Zenoh's real-time priority, ahead of
+    the state and camera traffic that congests a busy link; ``never_drop`` ones make the publisher wait
+    for queue space rather than lose the message (only for rare messages put outside the control loop).
+    """
 
     name: str
     type: type[M]
+    urgent: bool = False
+    never_drop: bool = False
 
     def key(self, robot: str) -> str:
         return key(robot, self.name)
@@ -90,9 +96,9 @@ CAMERA_ANNOTATED = Topic("camera/annotated", AnnotatedImage)
 CMD_CHUNK = Topic("cmd/chunk", ActionChunk)
 CHUNK_STATUS = Topic("cmd/status", ChunkStatus)
 EVENTS_RETREAT = Topic("events/retreat", RetreatEvent)
-EVENTS_SAFETY = Topic("events/safety", SafetyEvent)
+EVENTS_SAFETY = Topic("events/safety", SafetyEvent, urgent=True)
 TELEMETRY_LEARNER = Topic("telemetry/learner", LearnerTelemetry)
-CONTROL = Topic("control", Control)
+CONTROL = Topic("control", Control, urgent=True, never_drop=True)
 # Simulation only: the target's ground truth, for the sim camera, tests and benchmarks (the learner's
 # observation only when a test asks for it with ``learner.target_topic``).
 TARGET_TRUTH = Topic("sim/target_truth", Target)

@@ -14,6 +14,7 @@ channels (not the rejected or derived ones) with the original timing.
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -22,7 +23,11 @@ from pathlib import Path
 import zenoh
 from google.protobuf import descriptor_pb2
 from google.protobuf.descriptor import FileDescriptor
-from mcap.reader import make_reader
+from mcap.exceptions import McapError
+from mcap.records import Channel as McapChannel
+from mcap.records import Message as McapMessage
+from mcap.records import Schema as McapSchema
+from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from deploy import messages as m
@@ -58,7 +63,9 @@ class Recorder:
     """Subscribes to ``adaptiveh/<robot>/**`` on ``session`` and writes every sample to ``path``.
 
     ``deriver``: writes the Foxglove channels derived from each valid message too (the stack passes one
-    built from its config; without one the file holds the raw channels only).
+    built from its config; without one the file holds the raw channels only). ``flush_s``: the data are
+    written out (as a finished chunk) at least this often, so a recorder killed outright (SIGKILL, power
+    loss) leaves a file that ``read`` opens with everything up to its last flush.
     """
 
     def __init__(
@@ -68,6 +75,7 @@ class Recorder:
         path: str | Path,
         exclude: tuple[str, ...] = (),
         deriver: Deriver | None = None,
+        flush_s: float = 1.0,
     ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,7 +91,16 @@ class Recorder:
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
         self.count = 0
         self._closed = False
+        self._done = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_every, args=(flush_s,), daemon=True)
+        self._flusher.start()
         self._sub = session.declare_subscriber(f"{NAMESPACE}/{robot}/**", self._on_sample)
+
+    def _flush_every(self, period: float) -> None:
+        while not self._done.wait(period):
+            with self._lock:
+                if not self._closed:
+                    self._writer.flush()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -146,6 +163,7 @@ class Recorder:
         except Exception as exc:  # the session may already be closed
             log.debug("undeclare: %s", exc)
         with self._lock:
+            self._done.set()
             if not self._closed:
                 self._closed = True
                 self._writer.finish()
@@ -155,20 +173,39 @@ class Recorder:
 def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
     """All messages of a recording as (key, schema name, log_time ns, payload), in time order.
 
+    A file whose recorder was killed outright has no summary and ends mid-record: it is read as a
+    stream up to its last whole record, with a warning (everything up to the recorder's last flush).
     Recordings made before the protobuf schema (msgpack channels) are refused with a RecordingError.
     The derived Foxglove channels are read too (the JSON ones among them); ``replayable`` drops them.
     """
+    schemas: dict[int, str] = {}
+    channels: dict[int, McapChannel] = {}
     out = []
     with open(path, "rb") as fh:
-        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-            if channel.message_encoding != "protobuf" and not is_derived(channel.topic):
-                raise RecordingError(
-                    f"{path}: channel {channel.topic} is encoded as {channel.message_encoding!r}; this "
-                    "build reads protobuf recordings only (msgpack ones come from adaptiveh before the "
-                    "protobuf schema; replay them with that version)"
-                )
-            out.append((channel.topic, schema.name if schema else "", message.log_time, message.data))
+        try:
+            for record in StreamReader(fh, skip_magic=False).records:
+                if isinstance(record, McapSchema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, McapChannel):
+                    _check_encoding(path, record)
+                    channels[record.id] = record
+                elif isinstance(record, McapMessage):
+                    channel = channels[record.channel_id]
+                    name = schemas.get(channel.schema_id, "")
+                    out.append((channel.topic, name, record.log_time, record.data))
+        except (McapError, struct.error) as exc:
+            log.warning("%s ends early (%s): read to its last whole record, %d messages", path, exc, len(out))
+    out.sort(key=lambda r: r[2])
     return out
+
+
+def _check_encoding(path: str | Path, channel: McapChannel) -> None:
+    if channel.message_encoding != "protobuf" and not is_derived(channel.topic):
+        raise RecordingError(
+            f"{path}: channel {channel.topic} is encoded as {channel.message_encoding!r}; this "
+            "build reads protobuf recordings only (msgpack ones come from adaptiveh before the "
+            "protobuf schema; replay them with that version)"
+        )
 
 
 def replayable(records: list[tuple[str, str, int, bytes]]) -> list[tuple[str, str, int, bytes]]:

@@ -35,7 +35,7 @@ from deploy.learner_session import SESSIONS
 from deploy.node import Node
 from deploy.signing import ForgedMessage, Fresh, authentic
 from robot_io.command_gate import TakeoverRefused
-from robot_io.controller import ArmState, RobotController, TickResult
+from robot_io.controller import ArmHeld, ArmState, RobotController, TickResult
 from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
@@ -232,7 +232,7 @@ class RobotIONode(Node):
                 self.controller.take_over(request.session)  # a reset is how a learner session takes over
                 state = self.controller.reset(seed)
                 reply = m.ResetReply(ok=True, state=robot_state_message(state, time.time()))
-            except TakeoverRefused as exc:  # reported as a foreign_command safety event
+            except (TakeoverRefused, ArmHeld) as exc:  # a foreign session (a safety event), or held
                 reply = m.ResetReply(ok=False, detail=f"reset refused: {exc}")
             except Exception as exc:
                 log.exception("reset failed")

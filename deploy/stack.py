@@ -143,7 +143,10 @@ class Stack:
             env=self.part_environment(part),
             start_new_session=True,
         )
-        log.info("started %s (pid %d)", part, self.procs[part].pid)
+        nice = self.cfg.supervisor.nice.get(part, 0)
+        if nice and hasattr(os, "setpriority"):
+            os.setpriority(os.PRIO_PROCESS, self.procs[part].pid, nice)
+        log.info("started %s (pid %d, nice %d)", part, self.procs[part].pid, nice)
 
     def _restart_or_end(self, part: str, code: int) -> bool:
         """Bring back a part that exited (True), after a doubling back-off; False once it used its restarts.
@@ -207,6 +210,7 @@ class Stack:
                 self.recording_path,
                 self.recording.exclude,
                 deriver=Deriver(self.name, SceneSetup.from_stack(self.cfg)),
+                flush_s=self.recording.flush_s,
             )
         bus.subscribe(m.EVENTS_RETREAT, self.retreats.append)
         bus.subscribe(m.EVENTS_SAFETY, self.safety.append)

@@ -68,6 +68,19 @@ class ZenohConfig(Section):
         return self
 
 
+GOSSIP_STRATEGY = {"peer": {"to_router": "always", "to_peer": "always"}}
+TX_QUEUE_BATCHES = {
+    "control": 1,
+    "real_time": 4,
+    "interactive_high": 4,
+    "interactive_low": 4,
+    "data_high": 16,
+    "data": 16,
+    "data_low": 16,
+    "background": 4,
+}
+
+
 def _config(cfg: ZenohConfig, connect: list[str], listen: list[str], identity: str = "") -> zenoh.Config:
     """``cfg`` as Zenoh's config; ``identity`` picks this process's certificate and credentials."""
     zc = zenoh.Config()
@@ -75,6 +88,14 @@ def _config(cfg: ZenohConfig, connect: list[str], listen: list[str], identity: s
     zc.insert_json5("connect/endpoints", json.dumps(connect))
     zc.insert_json5("listen/endpoints", json.dumps(listen))
     zc.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
+    # Both ends of a gossiped peer link try to (re)connect, not only the greater Zenoh id (the default): a
+    # link dropped by a stall past its lease is remade at the next gossip. With the default it could stay
+    # lost while both parts kept the hub: robot-io's states stopped reaching vision and the test's peer
+    # after a 1 s SIGSTOP of robot-io (the fault matrix, tests/deploy/test_fault_matrix.py).
+    zc.insert_json5("scouting/gossip/autoconnect_strategy", json.dumps(GOSSIP_STRATEGY))
+    # Express messages take a batch each, and Zenoh's default data queue holds 4 per link: a subscriber
+    # busy for a few ticks (the recorder compressing a chunk) lost single states. Zenoh's maximum, 16.
+    zc.insert_json5("transport/link/tx/queue/size", json.dumps(TX_QUEUE_BATCHES))
     zc.insert_json5("transport/link/tx/lease", json.dumps(cfg.lease_ms))
     zc.insert_json5("transport/link/tx/keep_alive", json.dumps(4))  # keep-alives per lease (Zenoh's default)
     for key, value in security.zenoh_keys(cfg, identity).items():
@@ -183,7 +204,13 @@ class Bus:
         seal: Callable[[M], None] | None = None,
     ) -> Publisher[M]:
         """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed)."""
-        pub = self.session.declare_publisher(self.key(topic), express=express)
+        congestion = zenoh.CongestionControl
+        pub = self.session.declare_publisher(
+            self.key(topic),
+            express=express,
+            priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
+            congestion_control=congestion.BLOCK if topic.never_drop else congestion.DROP,
+        )
         self._declared.append(pub)
         return Publisher(pub, topic, first_seq, self._sealer(topic.type, seal))
 

@@ -302,6 +302,8 @@ class ZenohReachEnv(gym.Env):
                 err = reply.detail
             except (TimeoutError, m.MessageError) as exc:
                 err = str(exc)
+            if self.robot_mode in SUSPENDED:  # robot-io refuses to home an e-stopped, paused or faulted
+                deadline = time.monotonic() + self.settings.reset_timeout_s  # arm: the operator decides
             if time.monotonic() > deadline:
                 raise TimeoutError(f"robot reset failed: {err}")
             time.sleep(0.5)
@@ -383,12 +385,15 @@ class ZenohReachEnv(gym.Env):
                     continue  # stale or a jump (a forged number got in first): resend with the next one
             elif signed and self.robot_mode == "running" and sent in self._refused_chunks:
                 refused_in_a_row += 1  # not played in time, and refused: e.g. a token that is not robot-io's
-            # Not played: the arm is held (e-stop, pause, lost peer), the chunk was cut before it played,
-            # or another session took over (checked before the resend). Wait until it runs, then resend.
-            while not self._wait(lambda: self.robot_mode == "running" or self.stop.is_set(), 0.5):
+            # Not played: the arm is held (the watchdog after a stall of ours, a lost peer), e-stopped or
+            # paused, the chunk was cut before it played, or another session took over (checked before
+            # the resend). A watchdog hold lifts only with a fresh chunk, so a held arm gets one per
+            # step timeout (refused harmlessly while another hold lasts); an e-stop, a pause or a fault
+            # waits for the operator.
+            while not self._wait(lambda: self.robot_mode not in SUSPENDED or self.stop.is_set(), 0.5):
                 pass
-            if self.stop.is_set():
-                raise EnvStopped("stopped while waiting for the robot")
+            # At most one resend per tick: a "held" verdict comes before the state that shows the hold.
+            self._wait(lambda t=tick0: self._state is not None and self._state.tick > t, 2 * self.period)
         self._steps += 1
         self.global_step += 1
         obs, distance, info = self._observe()

@@ -70,8 +70,8 @@ class CommandGate:
         return None
 
     def admitted(self, seq: int) -> None:
-        """Chunk ``seq`` was queued: later ones must be newer. (A chunk refused for its content or
-        while the arm is held leaves its number free.)"""
+        """Chunk ``seq`` was queued, or refused while the arm was held: later ones must be newer. (A chunk
+        refused for its content leaves its number free.)"""
         self.last_seq = seq
 
     def describe(self, verdict: Verdict, session: str, seq: int) -> str:

@@ -27,6 +27,10 @@ UNREACHABLE_M = 0.01  # IK ending this far from its goal with no progress means 
 STEP_TOLERANCE = 1e-9  # relative: a step capped to exactly max_step_m by the sender is not "above" it
 
 
+class ArmHeld(RuntimeError):
+    """A motion was asked for (a reset) while the arm is e-stopped, paused, faulted or held."""
+
+
 @dataclass(frozen=True)
 class ArmState:
     q: np.ndarray
@@ -126,7 +130,8 @@ class RobotController:
             return "bad_plan"
         with self._lock:
             if not self.safety.accepts_commands():
-                return "held"
+                self.gate.admitted(chunk_seq)  # its number is used: a learner resending while held never
+                return "held"  # runs more than the gap ahead, and a copy of this one is stale
             if self.gate.check(session, chunk_seq) is not None:  # a newer one got in while unlocked
                 return "stale"
             if not self.queue.push(chunk_seq, actions, stamp):  # the gate admits only newer numbers
@@ -284,9 +289,21 @@ class RobotController:
         elif jogs and paused:
             for jog in jogs:
                 applied = self._execute(jog)
+        if applied is not None and self._held_meanwhile(played is not None):
+            self.backend.hold()  # an e-stop (or lost learner) came in since the check: brake this tick too
+            applied = None
         self.backend.step()
         with self._lock:
             return TickResult(self.state(), applied, self.safety.drain(), self.queue.reports())
+
+    def _held_meanwhile(self, chunk_action: bool) -> bool:
+        """A hold that arrived during this tick, after its safety pass: an e-stop stops a jog too, any hold
+        stops a learner's action, which then counts as not played."""
+        with self._lock:
+            held = self.safety.mode == "estop" or (chunk_action and not self.safety.may_move)
+            if held and chunk_action:
+                self._played = (-1, -1, 0.0)
+            return held
 
     def step_action(self, action: np.ndarray) -> TickResult:
         """In-process use (NS Reach, benchmarks): execute one action now and advance one period."""
@@ -338,8 +355,12 @@ class RobotController:
         return action
 
     def reset(self, seed: int | None = None) -> ArmState:
-        """Home pose and (in simulation) a new target motion; clears the queue and the watchdog."""
+        """Home pose and (in simulation) a new target motion; clears the queue and the watchdog. Refused
+        with ``ArmHeld`` while the operator or a fault holds the arm: homing is a motion too."""
         with self._lock:
+            if not self.safety.accepts_commands():
+                held = ", ".join(sorted(self.safety.reasons - {"watchdog"}))
+                raise ArmHeld(f"the arm is held ({held}): no reset until it is released")
             self.queue.clear()
             self._played = (-1, -1, 0.0)
             self.safety.last_command = None

@@ -37,6 +37,15 @@ from deploy.transport import Bus
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 PLANS_KEPT = 8  # the current plan and the recent ones the page draws
+SNAPSHOT_MAX_AGE_S = 0.1  # the page polls a few times a second; a snapshot this old is still current
+
+
+class Server(ThreadingHTTPServer):
+    """http.server with a longer listen queue: with the default 5, a few busy pages made the kernel drop
+    the operator's e-stop connection, which the client retried a second later (measured)."""
+
+    request_queue_size = 128
+    daemon_threads = True
 
 
 class MonitorConfig(Section):
@@ -54,6 +63,8 @@ class MonitorState:
 
     def __init__(self, bus: Bus, history: int = 600) -> None:
         self.lock = threading.Lock()
+        self._json_lock = threading.Lock()
+        self._json, self._json_at = b"", -float("inf")
         self.name = bus.robot
         self.segments: deque[dict[str, Any]] = deque(maxlen=history)
         self.statistic: deque[tuple[int, float, str]] = deque(maxlen=history * 5)
@@ -211,6 +222,15 @@ class MonitorState:
         with self.lock:
             self.image, self.image_detected = a.jpeg, a.detected
 
+    def snapshot_json(self, max_age_s: float = SNAPSHOT_MAX_AGE_S) -> bytes:
+        """The snapshot as JSON, built at most once per ``max_age_s``: every page polls it, and building
+        it per request let a few busy pages starve the operator's e-stop of the interpreter (measured)."""
+        with self._json_lock:
+            now = time.monotonic()
+            if now - self._json_at > max_age_s:
+                self._json, self._json_at = json.dumps(self.snapshot()).encode(), now
+            return self._json
+
     def snapshot(self) -> dict[str, Any]:
         with self.lock:
             return {
@@ -267,7 +287,7 @@ class MonitorServer(Node):
                 if path in ("/", "/index.html"):
                     self._send(200, (STATIC / "index.html").read_bytes(), "text/html; charset=utf-8")
                 elif path == "/api/state":
-                    self._send(200, json.dumps(server.state.snapshot()).encode(), "application/json")
+                    self._send(200, server.state.snapshot_json(), "application/json")
                 elif path == "/api/image.jpg":
                     with server.state.lock:
                         img = server.state.image
@@ -287,8 +307,7 @@ class MonitorServer(Node):
                     code, reply = 400, {"ok": False, "error": str(exc)}
                 self._send(code, json.dumps(reply).encode(), "application/json")
 
-        self.httpd = ThreadingHTTPServer((config.host, config.port), Handler)
-        self.httpd.daemon_threads = True
+        self.httpd = Server((config.host, config.port), Handler)
 
     @property
     def url(self) -> str:

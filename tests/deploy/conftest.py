@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import secrets
-import socket
-import time
 
 import pytest
 from bus_probe import BusProbe
-from loopback import free_endpoint, unique_name
+from loopback import free_endpoint, unique_name, wait_listening
 from stack_helpers import running_part
 
 from deploy import messages as m
@@ -33,15 +31,7 @@ def robot_hub(tmp_path_factory):
     joined: list[BusProbe] = []
 
     def up() -> None:
-        port = int(hub.rsplit(":", 1)[1])
-        deadline = time.monotonic() + 60
-        while True:  # join only once robot-io holds the hub, or this session would take it
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                assert time.monotonic() < deadline, "robot-io never listened on the hub"
-                time.sleep(0.2)
+        wait_listening(hub)  # join only once robot-io holds the hub, or this session would take it
         probe = BusProbe(Bus(open_session(stack.zenoh), cfg["name"]))
         probe.states = probe.collect(m.STATE, arrival=False, maxlen=50)
         probe.status = probe.collect(m.CHUNK_STATUS, arrival=False)

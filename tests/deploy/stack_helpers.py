@@ -101,3 +101,26 @@ def running_part(
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
+
+
+def assert_within_limits(states: list, robot: dict, tol_m: float = 0.01) -> None:
+    """No state of ``states`` (RobotState, in arrival order) shows the arm outside its workspace box or
+    joint limits, and no control tick that played an action moved it more than ``robot.max_step_m``
+    (``tol_m``: PyBullet's tracking slack). Consecutive ticks are compared only within one robot-io
+    process (its ``seq`` restarts with it), and a reset's jump home is not a played action."""
+    import numpy as np
+
+    from robot_io.description import RobotDescription
+
+    lo, hi = np.array(robot["workspace"]["lo"]), np.array(robot["workspace"]["hi"])
+    ee = np.array([s.ee_pos for s in states])
+    assert np.all(ee >= lo - tol_m) and np.all(ee <= hi + tol_m), "a state outside the workspace box"
+    limits = RobotDescription(robot.get("model", "panda")).limits
+    q = np.array([s.q for s in states])
+    assert np.all(q >= limits.lower - 1e-3) and np.all(q <= limits.upper + 1e-3), "outside the joint limits"
+    moves = [
+        float(np.linalg.norm(np.subtract(s.ee_pos, prev.ee_pos)))
+        for prev, s in zip(states, states[1:], strict=False)
+        if s.tick == prev.tick + 1 and s.seq > prev.seq and s.played_chunk >= 0
+    ]
+    assert moves and max(moves) <= robot["max_step_m"] + tol_m, f"a tick moved {max(moves or [0]):.3f} m"

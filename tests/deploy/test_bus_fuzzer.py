@@ -22,13 +22,12 @@ from collections import defaultdict, deque
 import numpy as np
 import pytest
 from bus_probe import BusProbe
-from stack_helpers import PARTS, parts_of, write_stack_config
+from stack_helpers import PARTS, assert_within_limits, parts_of, write_stack_config
 
 from deploy import messages as m
 from deploy.config import load_stack_config
 from deploy.signing import authentic, mac_key
 from deploy.transport import Bus, open_session
-from robot_io.description import RobotDescription
 
 FUZZ_S = float(os.environ.get("ADAPTIVEH_FUZZ_S", "12"))
 TOL_M = 0.01  # m: PyBullet tracking slack around the box and the step bound
@@ -144,18 +143,6 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
     ticks = [s.tick for s in mine if t0 <= s.stamp <= t1]
     assert step1 - step0 <= (max(ticks) - min(ticks)) + int(4.0 * cfg["robot"]["control_rate_hz"])
     # No commanded motion outside the limits: inside the box, the joint limits, one step per tick.
-    lo, hi = np.array(cfg["robot"]["workspace"]["lo"]), np.array(cfg["robot"]["workspace"]["hi"])
-    ee = np.array([s.ee_pos for s in mine])
-    assert np.all(ee >= lo - TOL_M) and np.all(ee <= hi + TOL_M)
-    limits = RobotDescription("panda").limits
-    q = np.array([s.q for s in mine])
-    assert np.all(q >= limits.lower - 1e-3) and np.all(q <= limits.upper + 1e-3)
-    by_tick = {s.tick: s for s in mine}  # a tick that played an action moved at most one step (a reset
-    moves = [  # teleports the simulated arm home between ticks: not a played action)
-        np.linalg.norm(np.subtract(s.ee_pos, by_tick[t - 1].ee_pos))
-        for t, s in by_tick.items()
-        if t - 1 in by_tick and s.played_chunk >= 0
-    ]
-    assert max(moves) <= cfg["robot"]["max_step_m"] + TOL_M
+    assert_within_limits(mine, cfg["robot"], TOL_M)
     result = json.loads((tmp_path / "learner" / "result.json").read_text())
     assert result["global_step"] >= step1

@@ -235,6 +235,31 @@ def test_bytes_that_do_not_decode_are_kept_apart(tmp_path: Path, endpoint: str) 
     assert rejected.data == b"\xff\x00garbage" and "ChunkStatus: undecodable" in rejected.error
 
 
+def test_a_killed_recorder_leaves_everything_to_its_last_flush(tmp_path: Path, endpoint: str) -> None:
+    """The file as a SIGKILL leaves it (no summary, cut mid-record) reads back up to the last flush."""
+    import shutil
+
+    from deploy.recording import Recorder, read
+
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    path = tmp_path / "r.mcap"
+    recorder = Recorder(session, "kf", path, flush_s=0.2)
+    try:
+        for seq in range(1, 31):
+            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1)
+            session.put("adaptiveh/kf/cmd/status", status.SerializeToString())
+        time.sleep(0.8)  # a flush or more
+        killed = tmp_path / "killed.mcap"
+        shutil.copy(path, killed)  # what is on disk at the kill
+        data = killed.read_bytes()
+        killed.write_bytes(data + data[-20:-7])  # and a record cut short after it
+    finally:
+        recorder.close()
+        session.close()
+    seqs = [m.decode(d, m.ChunkStatus).seq for k, _, _, d in read(killed) if k == "adaptiveh/kf/cmd/status"]
+    assert seqs == list(range(1, 31))
+
+
 def test_old_msgpack_recordings_are_refused_clearly(tmp_path: Path) -> None:
     from mcap.writer import Writer
 

@@ -1,6 +1,7 @@
 """The controller on the PyBullet mock: workspace box, command checks, holds, unreachable goals."""
 
 import numpy as np
+import pytest
 
 from robot_io.config import RobotConfig
 
@@ -78,3 +79,40 @@ def test_unreachable_goal_is_an_event_not_an_exception():
         assert r.state.ee_pos[0] > 0.75  # stretched out towards the goal
     finally:
         c.close()
+
+
+def test_an_estop_during_a_tick_brakes_that_tick(controller):
+    """The operator's e-stop lands while a tick computes its command (after it took the action, before
+    physics): that tick brakes and counts the action as not played."""
+    controller.obey("s")
+    controller.reset()
+    controller.push_chunk("s", 0, np.tile([0.0, -0.04, 0.0], (40, 1)), 10.0)
+    for k in range(4):
+        r = controller.tick(10.0 + k * controller.config.period)
+    assert np.abs(r.state.dq).max() > 0.2
+    send = controller.backend.send_joint_command
+
+    def estop_then_send(q):  # the Zenoh thread's e-stop, between the take and the command
+        controller.operator("estop")
+        send(q)
+
+    controller.backend.send_joint_command = estop_then_send
+    r = controller.tick(11.0)
+    assert r.state.mode == "estop" and r.state.played_chunk == -1 and r.applied is None
+    assert np.abs(controller.tick(11.05).state.dq).max() < 0.01
+
+
+def test_a_reset_waits_for_the_operator_to_release(controller):
+    """Homing is a motion: refused while e-stopped (on a real arm it drives the arm home), done after."""
+    from robot_io.controller import ArmHeld
+
+    controller.operator("estop")
+    controller.tick(1.0)
+    q = controller.state().q
+    with pytest.raises(ArmHeld, match="estop"):
+        controller.reset()
+    np.testing.assert_allclose(controller.state().q, q)
+    controller.operator("release")
+    controller.tick(1.05)
+    controller.reset()
+    np.testing.assert_allclose(controller.state().q, controller.home, atol=1e-3)
