@@ -59,5 +59,20 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def entry() -> None:
+    """The process entry (the ``adaptiveh`` script, ``python -m deploy.cli``): an unexpected error is
+    logged and ends the process at once. Without ``os._exit`` a part whose start failed (its port taken)
+    stayed alive on Zenoh's threads after the traceback, so ``adaptiveh up`` neither restarted it nor
+    ended the run (measured)."""
+    try:
+        code = main()
+    except Exception:
+        logging.exception("adaptiveh %s failed", " ".join(sys.argv[1:2]))
+        logging.shutdown()
+        sys.stderr.flush()
+        os._exit(1)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

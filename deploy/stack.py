@@ -98,10 +98,13 @@ class Stack:
         self.run_dir = Path(run_dir) if run_dir else self.learner_dir.parent
         self.procs: dict[str, subprocess.Popen] = {}
         self.restarts: dict[str, int] = {}
+        self.gave_up = ""  # the part that used its restarts, which ended the run
         self._stop = threading.Event()
-        self.retreats: list[m.RetreatEvent] = []
-        self.safety: list[m.SafetyEvent] = []
-        self.telemetry: list[m.LearnerTelemetry] = []
+        # What the summary needs, not the messages (kept, they grew the supervisor ~4 MB an hour).
+        self.segment_h: list[int] = []
+        self.reasons: Counter[str] = Counter()  # segments by why they closed
+        self.safety_kinds: Counter[str] = Counter()
+        self.telemetry: m.LearnerTelemetry | None = None  # the newest
         self.monitor_url = ""
         self.foxglove_url = ""  # the monitor's Foxglove live view, when it serves one
         self.recording_path: Path | None = None
@@ -177,6 +180,8 @@ class Stack:
         deadline = time.monotonic() + timeout
         live = self.cfg.monitor is not None and self.cfg.monitor.foxglove_port is not None
         while time.monotonic() < deadline and not (self.monitor_url and (self.foxglove_url or not live)):
+            if self.procs["monitor"].poll() is not None:
+                return  # it died at start: the main loop restarts it or ends the run
             for line in path.read_text().splitlines() if path.exists() else []:
                 if line.startswith("monitor: ") and not self.monitor_url:
                     self.monitor_url = line.split(" ", 1)[1]
@@ -212,9 +217,9 @@ class Stack:
                 deriver=Deriver(self.name, SceneSetup.from_stack(self.cfg)),
                 flush_s=self.recording.flush_s,
             )
-        bus.subscribe(m.EVENTS_RETREAT, self.retreats.append)
-        bus.subscribe(m.EVENTS_SAFETY, self.safety.append)
-        bus.subscribe(m.TELEMETRY_LEARNER, self.telemetry.append)
+        bus.subscribe(m.EVENTS_RETREAT, self._on_segment)
+        bus.subscribe(m.EVENTS_SAFETY, lambda e: self.safety_kinds.update([m.label(e, "kind")]))
+        bus.subscribe(m.TELEMETRY_LEARNER, self._on_telemetry)
         t0 = time.monotonic()
         try:
             for part in self.part_commands():
@@ -229,7 +234,8 @@ class Stack:
                 if self.procs["learner"].poll() == 0:
                     break  # the learner did its steps: the run is complete
                 dead = [(p, proc.returncode) for p, proc in self.procs.items() if proc.poll() is not None]
-                if any(not self._restart_or_end(part, code) for part, code in dead):
+                self.gave_up = next((part for part, code in dead if not self._restart_or_end(part, code)), "")
+                if self.gave_up:
                     log.error("see %s", self.run_dir / "logs")
                     break
                 if self.progress and time.monotonic() - last > 5.0:
@@ -243,15 +249,23 @@ class Stack:
             bus.close()
         return self.summary(time.monotonic() - t0)
 
+    def _on_segment(self, e: m.RetreatEvent) -> None:
+        self.segment_h.append(e.H)
+        self.reasons.update([m.label(e, "reason")])
+
+    def _on_telemetry(self, t: m.LearnerTelemetry) -> None:
+        if self.telemetry is None or t.global_step >= self.telemetry.global_step:
+            self.telemetry = t
+
     def _progress_line(self, elapsed: float) -> str:
-        tel = self.telemetry[-1] if self.telemetry else None
-        retreats = sum(e.reason == m.RetreatEvent.RETREAT for e in self.retreats)
+        tel, segments = self.telemetry, len(self.segment_h)
+        retreats = self.reasons["retreat"]
         if tel is None:
-            return f"[{elapsed:5.0f} s] waiting for the first episode; segments {len(self.retreats)}"
+            return f"[{elapsed:5.0f} s] waiting for the first episode; segments {segments}"
         return (
             f"[{elapsed:5.0f} s] step {tel.global_step} episode {tel.episode} return {tel.episode_return:.2f}"
-            f" success {tel.success} | retreats {retreats} of {len(self.retreats)} segments"
-            f" | safety events {len(self.safety)}"
+            f" success {tel.success} | retreats {retreats} of {segments} segments"
+            f" | safety events {self.safety_kinds.total()}"
         )
 
     def stop_parts(self) -> None:
@@ -276,22 +290,23 @@ class Stack:
         quarters = [
             float(np.mean(succ[i * q : (i + 1) * q])) if succ[i * q : (i + 1) * q] else None for i in range(4)
         ]
-        H = [e.H for e in self.retreats]
+        H = self.segment_h
         return {
             "wall_clock_s": wall,
             "episodes": len(eps),
             "global_step": result.get("global_step", 0),
             "success_rate_by_quarter": quarters if len(succ) >= 4 else None,
             "success_rate": float(np.mean(succ)) if succ else None,
-            "segments": len(self.retreats),
-            "reasons": dict(Counter(m.label(e, "reason") for e in self.retreats)),
+            "segments": len(H),
+            "reasons": dict(self.reasons),
             "H": h_stats(H) if H else None,
             "dropped_actions": result.get("dropped_actions"),
             "retreat_preemptions": result.get("retreat_preemptions"),
             "retreat_dropped": result.get("retreat_dropped"),
-            "safety_events": dict(Counter(m.label(e, "kind") for e in self.safety)),
+            "safety_events": dict(self.safety_kinds),
             "recording": str(self.recording_path) if self.recording_path else None,
             "learner_result": str(result_path),
             "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},
             "restarts": dict(self.restarts),
+            "gave_up": self.gave_up or None,
         }

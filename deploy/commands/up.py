@@ -49,4 +49,4 @@ def run(args: argparse.Namespace) -> int:
     if args.summary:
         with open(args.summary, "w") as fh:
             fh.write(text)
-    return 0 if summary["exit_codes"].get("learner") == 0 else 1
+    return 0 if summary["exit_codes"].get("learner") == 0 and not summary["gave_up"] else 1

@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+import yaml
 from stack_helpers import PARTS, parts_of, write_stack_config
 
 
@@ -66,3 +68,27 @@ def test_a_token_file_others_can_read_is_refused(tmp_path):
     token.chmod(0o644)
     with pytest.raises(SystemExit, match="readable by others"):
         main(["monitor", "--config", "configs/sim.yaml", "--token-file", str(token), "--duration", "0.1"])
+
+
+def test_the_run_ends_when_a_part_has_used_its_restarts(tmp_path):
+    """A part that cannot run (the monitor's port is taken) is restarted ``max_restarts`` times, then the
+    run ends: every part stopped, the summary says who used its restarts."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        path, cfg = write_stack_config(tmp_path, "ex", steps=100000)
+        cfg["monitor"]["port"] = taken.getsockname()[1]
+        cfg["supervisor"] = {"max_restarts": 2, "backoff_s": 0.2}
+        path.write_text(yaml.safe_dump(cfg))
+        out = tmp_path / "summary.json"
+        up = subprocess.run(
+            [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out)],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
+    assert up.returncode != 0
+    summary = json.loads(out.read_text())
+    assert summary["restarts"] == {"monitor": 2} and summary["gave_up"] == "monitor"
+    assert "used its 2 restarts" in (tmp_path / "logs" / "monitor.log").read_text() + up.stderr + up.stdout
+    assert not parts_of(path)
