@@ -69,20 +69,6 @@ def peak_rss_kib() -> float:
     return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 
 
-def make_bench_agent(algo: str, env: Any, seed: int, config: dict[str, Any]) -> Any:
-    """The registry's agents (``learner.registry.make_agent``), and the SB3 baselines it does not list
-    (SAC, PPO) straight from ``learner.baselines``."""
-    from learner.registry import ALGOS, make_agent
-
-    if algo in ALGOS:
-        return make_agent(algo, env, seed, config)
-    from learner.baselines import SB3_CLASSES, SB3Agent
-
-    if algo in SB3_CLASSES:
-        return SB3Agent(algo, env, config, seed)
-    raise ValueError(f"unknown algo {algo!r}")
-
-
 def execute_run(spec: RunSpec, out_dir: str) -> dict[str, Any]:
     """Run one spec to completion and write ``runs/<name>.json``; errors come back, never raise."""
     try:
@@ -135,9 +121,11 @@ def code_version() -> dict[str, Any]:
 def compute_run(spec: RunSpec, code: dict[str, Any] | None = None, executor: str = "local") -> dict[str, Any]:
     """Learn one spec in this process and return its run record (``code``: the commit it runs, by
     default this tree's; the Ray executor passes the driver's, whose tree it ships to the workers)."""
+    from learner.registry import make_agent  # the learners load torch: only in the process that runs
+
     env_spec = spec.env_spec
     env = make_env(env_spec, spec.env_kwargs)
-    agent = make_bench_agent(spec.algo, env, spec.seed, dict(spec.config))
+    agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
     t0 = time.perf_counter()
     log = agent.learn(spec.steps)
     wall = time.perf_counter() - t0

@@ -17,9 +17,8 @@ from pydantic import Field
 from common.config import Section
 from learner.registry import ALGOS
 
-# The bench's methods, in the paper's order: the learner registry's (``learner.registry.ALGOS``) plus
-# SAC and PPO, which the bench builds through ``learner.baselines`` (``execute.make_bench_agent``) while
-# the registry does not list them; an algorithm the registry gains is appended.
+# The bench's methods, in the paper's order: the learner registry's (``learner.registry.ALGOS``); an
+# algorithm the registry gains is appended.
 PAPER_ORDER = ("adaptiveh", "td3", "ddpg", "sac", "ppo", "rkhs")
 PAPER_ALGOS: tuple[str, ...] = tuple(dict.fromkeys((*PAPER_ORDER, *ALGOS)))
 SB3_ALGOS = ("td3", "ddpg", "sac", "ppo")  # the stable-baselines3 baselines: zoo hyperparameters

@@ -44,64 +44,18 @@ import pickle
 import random
 import zipfile
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
-from pydantic import Field, field_validator
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 
-from common.config import Section
-from learner.config import SB3Config
+from learner.config import PPOConfig, SACConfig, SB3Config
 from learner.protocol import EpisodeRecord, RunLog, StepCallback
-
-
-class SACConfig(Section):
-    """SAC settings: the zoo's Pendulum-v1 (lr 1e-3) and SB3's defaults (see the module docstring)."""
-
-    learning_rate: float = Field(1e-3, gt=0, lt=1)
-    gamma: float = Field(0.99, gt=0, lt=1)
-    buffer_size: int = Field(1_000_000, ge=1)
-    learning_starts: int = Field(100, ge=0)
-    batch_size: int = Field(256, ge=1)
-    tau: float = Field(0.005, gt=0, le=1)
-    train_freq: int = Field(1, ge=1)  # env steps between trainings
-    gradient_steps: int = Field(1, ge=-1)  # per training; -1: as many as env steps since the last one
-    ent_coef: Literal["auto"] | Annotated[float, Field(gt=0)] = "auto"
-    use_sde: bool = False
-    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [256, 256], min_length=1)
-    torch_threads: int = Field(1, ge=1)
-
-    @field_validator("gradient_steps")
-    @classmethod
-    def _some_steps(cls, value: int) -> int:
-        if value == 0:
-            raise ValueError("0 trains nothing: use -1 (as many as env steps) or >= 1")
-        return value
-
-
-class PPOConfig(Section):
-    """PPO settings: the zoo's tuned Pendulum-v1 values with one env (see the module docstring)."""
-
-    learning_rate: float = Field(1e-3, gt=0, lt=1)
-    n_steps: int = Field(1024, ge=2)  # env steps per rollout (one env)
-    batch_size: int = Field(64, ge=2)
-    n_epochs: int = Field(10, ge=1)
-    gamma: float = Field(0.9, gt=0, lt=1)
-    gae_lambda: float = Field(0.95, ge=0, le=1)
-    clip_range: float = Field(0.2, gt=0)
-    ent_coef: float = Field(0.0, ge=0)
-    vf_coef: float = Field(0.5, ge=0)
-    max_grad_norm: float = Field(0.5, gt=0)
-    use_sde: bool = True
-    sde_sample_freq: int = Field(4, ge=-1)
-    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [64, 64], min_length=1)
-    torch_threads: int = Field(1, ge=1)
-
 
 BaselineConfig = SB3Config | SACConfig | PPOConfig
 SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG, "sac": SAC, "ppo": PPO}

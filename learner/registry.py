@@ -10,7 +10,7 @@ from learner.protocol import Agent
 
 # The algorithms, in the paper's order (its tables and figures list them so); configs declare
 # ``algo: Algo`` and everything else iterates ``ALGOS``.
-Algo = Literal["adaptiveh", "td3", "ddpg", "rkhs"]
+Algo = Literal["adaptiveh", "td3", "ddpg", "rkhs", "sac", "ppo"]
 ALGOS: tuple[str, ...] = get_args(Algo)
 
 
@@ -22,8 +22,9 @@ def make_agent(algo: str, env: gym.Env, seed: int = 0, config: dict[str, Any] | 
 
         cls = AdaptiveH if algo == "adaptiveh" else RKHSFixedH
         return cls(env, AdaptiveHConfig(**(config or {})), seed)
-    if algo in ("td3", "ddpg"):
-        from learner.baselines import SB3Agent, SB3Config
+    if algo in ("td3", "ddpg", "sac", "ppo"):
+        from learner.baselines import SB3Agent
+        from learner.config import AGENT_CONFIGS
 
-        return SB3Agent(algo, env, SB3Config(**(config or {})), seed)
+        return SB3Agent(algo, env, AGENT_CONFIGS[algo](**(config or {})), seed)
     raise ValueError(f"unknown algo {algo!r}; choose one of {ALGOS}")

@@ -12,7 +12,7 @@ from common.config import ConfigError
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train", help="train an agent in-process on one environment")
     p.add_argument("--env", help="gymnasium id, e.g. NSCartPoleContinuous-v0, NSPendulum-v0, NSReach-v0")
-    p.add_argument("--algo", help="adaptiveh | rkhs | td3 | ddpg")
+    p.add_argument("--algo", help="adaptiveh | rkhs | td3 | ddpg | sac | ppo")
     p.add_argument("--steps", type=int)
     p.add_argument("--seed", type=int)
     p.add_argument("--preset", help="non-stationarity preset: stationary | slow | fast")

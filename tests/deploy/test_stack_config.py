@@ -45,7 +45,7 @@ def _with(tmp_path: Path, section: str, key: str, value: object) -> Path:
         ("learner", "steps", 0, ["learner.steps: Input should be greater than or equal to 1 (got 0)"]),
         # a value outside a closed set: the allowed values are listed
         ("robot", "backend", "ur5", ["robot.backend: Input should be 'pybullet' or 'franka' (got 'ur5')"]),
-        ("learner", "algo", "ppo", ["learner.algo: Input should be", "'adaptiveh'", "'ddpg'", "(got 'ppo')"]),
+        ("learner", "algo", "a2c", ["learner.algo: Input should be", "'adaptiveh'", "'ppo'", "(got 'a2c')"]),
         ("zenoh", "mode", "mesh", ["zenoh.mode: Input should be 'peer', 'client' or 'router' (got 'mesh')"]),
         # nested sections and invariants keep their full path
         ("learner", "target_box", [[0.6, 0, 0.1], [0.4, 0.3, 0.5]], ["learner.target_box:", "below hi"]),

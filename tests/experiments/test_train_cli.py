@@ -111,7 +111,7 @@ def test_unknown_yaml_key_is_a_config_error_naming_it(tmp_path):
     "text, key",
     [
         ("steps: 0\n", "steps"),
-        ("algo: ppo\n", "algo"),
+        ("algo: a2c\n", "algo"),
         ("env: NoSuchEnv-v0\n", "env"),
         ("checkpoint_every: 0\n", "checkpoint_every"),
     ],
@@ -185,3 +185,16 @@ def test_cli_config_error_exit_status_of_the_installed_command(tmp_path):
     )
     assert proc.returncode == 2, proc.stderr
     assert "config error" in proc.stderr and "bogus_key" in proc.stderr
+
+
+@pytest.mark.parametrize("algo", ["sac", "ppo"])
+def test_train_runs_sac_and_ppo_with_their_zoo_settings(tmp_path, algo):
+    """SAC and PPO are registered like every other learner: ``adaptiveh train --algo sac|ppo`` runs them,
+    and their ``agent:`` section is checked against their own settings."""
+    out = tmp_path / algo
+    assert main(["train", "--env", "NSPendulum-v0", "--algo", algo, "--steps", "300", "--out", str(out)]) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["global_step"] == 300 and result["spec"]["algo"] == algo
+    bad = _write(tmp_path / "bad.yaml", f"algo: {algo}\nenv: NSPendulum-v0\nagent: {{noise_std: 0.1}}\n")
+    if algo == "ppo":  # a TD3 key is not PPO's: a config error (exit 2), before any training
+        assert main(["train", "--config", str(bad), "--steps", "10", "--out", str(tmp_path / "b")]) == 2

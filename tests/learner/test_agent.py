@@ -267,6 +267,6 @@ def test_make_agent_builds_both_rkhs_learners_and_rejects_unknown_ones():
     rkhs = make_agent("rkhs", env, 0, {})
     assert isinstance(rkhs, RKHSFixedH) and rkhs.name == "rkhs"
     with pytest.raises(ValueError, match="unknown algo"):
-        make_agent("ppo", env, 0)
+        make_agent("a2c", env, 0)
     with pytest.raises(ValueError, match="alpah"):
         make_agent("adaptiveh", env, 0, {"alpah": 0.01})
