@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -124,3 +125,22 @@ def assert_within_limits(states: list, robot: dict, tol_m: float = 0.01) -> None
         if s.tick == prev.tick + 1 and s.seq > prev.seq and s.played_chunk >= 0
     ]
     assert moves and max(moves) <= robot["max_step_m"] + tol_m, f"a tick moved {max(moves or [0]):.3f} m"
+
+
+def start_up(path: Path, timeout: float = 60.0) -> tuple[subprocess.Popen, str]:
+    """``adaptiveh up <path>`` (stdout piped, stderr dropped) and its operator token, once every part of
+    ``PARTS`` runs: a peer joining after that finds the supervisor holding the loopback hub."""
+    up = subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "up", str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    token = up.stdout.readline().strip().removeprefix("operator token: ")
+    deadline = time.monotonic() + timeout
+    while set(parts_of(path)) != set(PARTS):
+        if time.monotonic() > deadline or up.poll() is not None:
+            up.kill()
+            pytest.fail(f"adaptiveh up: parts up {sorted(parts_of(path))}, exit {up.poll()}")
+        time.sleep(0.5)
+    return up, token

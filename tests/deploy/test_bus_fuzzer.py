@@ -22,7 +22,7 @@ from collections import defaultdict, deque
 import numpy as np
 import pytest
 from bus_probe import BusProbe
-from stack_helpers import PARTS, assert_within_limits, parts_of, write_stack_config
+from stack_helpers import PARTS, assert_within_limits, parts_of, start_up, write_stack_config
 
 from deploy import messages as m
 from deploy.config import load_stack_config
@@ -54,18 +54,8 @@ def mutate(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
 def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
     path, cfg = write_stack_config(tmp_path, "fz", steps=100000)
     stack = load_stack_config(path)
-    up = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "up", str(path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    token = up.stdout.readline().strip().removeprefix("operator token: ")
+    up, token = start_up(path)
     key = mac_key(token)
-    deadline = time.monotonic() + 60
-    while set(parts_of(path)) != set(PARTS):  # join only once the supervisor holds the loopback hub
-        assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(parts_of(path))}"
-        time.sleep(0.5)
     bus = Bus(open_session(stack.zenoh), stack.name)  # the stranger: no token
     probe = BusProbe(bus)
     states = probe.collect(m.STATE, arrival=False)

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 from bus_probe import BusProbe
-from stack_helpers import PARTS, assert_within_limits, parts_of, write_stack_config
+from stack_helpers import PARTS, assert_within_limits, parts_of, start_up, write_stack_config
 
 from deploy import messages as m
 from deploy.config import load_stack_config
@@ -94,17 +94,7 @@ def run(tmp_path_factory) -> Iterator[Run]:
     cfg["supervisor"] = {"max_restarts": 3, "backoff_s": 1.0}
     path.write_text(yaml.safe_dump(cfg))
     stack = load_stack_config(path)
-    up = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "up", str(path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    token = up.stdout.readline().strip().removeprefix("operator token: ")
-    deadline = time.monotonic() + 60
-    while set(parts_of(path)) != set(PARTS):  # join only once the supervisor holds the loopback hub
-        assert time.monotonic() < deadline and up.poll() is None, f"parts up: {sorted(parts_of(path))}"
-        time.sleep(0.5)
+    up, token = start_up(path)
     probe = BusProbe(Bus(open_session(stack.zenoh), stack.name, mac_key(token)))
     r = Run(up, path, cfg, probe, {t.name: probe.collect(t) for t in KEPT})
     try:
