@@ -111,8 +111,9 @@ class SupervisorConfig(Section):
     backoff_s: float = Field(1.0, gt=0)  # wait before the first restart, doubled each time
     backoff_max_s: float = Field(30.0, gt=0)
     # Linux niceness (0..19) per part: under CPU contention robot-io's control loop and the learner come
-    # before the camera's rendering (measured: starved robot-io ticks delayed e-stops past 2 periods).
-    nice: dict[Literal["robot_io", "vision", "monitor", "learner"], int] = {"vision": 5}
+    # before the camera's rendering and the operator's pages (measured: with a hammered monitor, starved
+    # robot-io ticks delayed e-stops past 2 periods).
+    nice: dict[Literal["robot_io", "vision", "monitor", "learner"], int] = {"vision": 5, "monitor": 5}
 
     @field_validator("nice")
     @classmethod

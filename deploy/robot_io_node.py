@@ -23,6 +23,7 @@ length: ``bad_plan``). Nothing of it plays and the arm holds where it is; see
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -60,6 +61,22 @@ def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
         played_stamp=s.played_stamp,
     )
 
+
+
+def prioritize_this_thread(nice: int) -> None:
+    """Ask Linux for ``nice`` on the calling thread (its own task); a refusal is logged, once, as what it
+    costs: under CPU contention the control loop then waits its turn like any other thread."""
+    if not nice or not hasattr(os, "setpriority") or not hasattr(threading, "get_native_id"):
+        return
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+    except OSError as exc:
+        log.warning(
+            "robot-io's control thread keeps its priority (robot.control_thread_nice %d refused: %s); grant"
+            " CAP_SYS_NICE for real arms, or ticks may come late when the CPU is busy",
+            nice,
+            exc,
+        )
 
 class RobotIONode(Node):
     """Run with ``start()``/``stop()`` (or as a context manager); the control loop is its one worker."""
@@ -252,6 +269,7 @@ class RobotIONode(Node):
 
     def run(self) -> None:
         """Tick at the control rate until stopped; between ticks serve resets and e-stops at once."""
+        prioritize_this_thread(self.controller.config.control_thread_nice)
         next_tick = time.monotonic()
         while not self.stopping:
             now = time.monotonic()

@@ -95,6 +95,9 @@ class RobotConfig(Section):
     joint_margin_rad: float = Field(0.02, ge=0, lt=0.3)  # commands stay this far inside the URDF limits
     velocity_scale: float = Field(0.5, gt=0, le=1)  # fraction of the URDF joint velocity limits for the IK
     watchdog_timeout_s: float = Field(0.5, gt=0)
+    # Niceness asked for robot-io's control thread (Linux; below 0 needs CAP_SYS_NICE, else it runs at the
+    # process's and says so once): a starved control thread ticked late and held e-stops past 2 periods.
+    control_thread_nice: int = Field(-5, ge=-20, le=19)
     target_motion: MotionPreset = "slow"  # pybullet
     seed: int = 0
     home_q: Joints = MODELS["panda"].home_q
