@@ -104,13 +104,15 @@ class VisionNode(Node):
 
     alive_as = "vision"
 
-    def __init__(self, settings: StackConfig, camera: Camera | None = None) -> None:
+    def __init__(self, settings: StackConfig, camera: Camera | None = None, token: str = "") -> None:
+        """``token``: the stack's operator token: the targets are signed with its key, and the robot
+        states its simulated camera poses the arm from must be (``deploy.signing``)."""
         if settings.vision is None:
             raise ConfigError(f"robot {settings.name}: the config has no vision section")
         self.settings = settings
         self.config = settings.vision
         self.pipeline = VisionPipeline(self.config)
-        super().__init__(settings.name, settings.zenoh)
+        super().__init__(settings.name, settings.zenoh, token=token)
         self._pub_target = self.bus.publisher(m.TARGET)
         self._pub_image = self.bus.publisher(m.CAMERA_ANNOTATED, express=False)
         self._pub_event = self.bus.publisher(m.EVENTS_SAFETY)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import add_part_arguments, setup_logging
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("vision", help="run the vision process: camera frames in, 3D target out")
     add_part_arguments(p, "name, zenoh, vision")
+    add_token_argument(p)
     p.set_defaults(func=run)
 
 
@@ -23,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(args.log_level)
     cfg = load_stack_config(args.config)
     try:
-        node = VisionNode(cfg)
+        node = VisionNode(cfg, token=operator_token(args))
     except CameraError as exc:
         logging.error("%s", exc)
         return 3

@@ -63,7 +63,7 @@ class RobotState(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Target(_message.Message):
-    __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status")
+    __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status", "mac")
     class Status(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         STATUS_UNSPECIFIED: _ClassVar[Target.Status]
@@ -84,6 +84,7 @@ class Target(_message.Message):
     VALID_FIELD_NUMBER: _ClassVar[int]
     FRAME_STAMP_FIELD_NUMBER: _ClassVar[int]
     STATUS_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     position: _containers.RepeatedScalarFieldContainer[float]
@@ -92,7 +93,8 @@ class Target(_message.Message):
     valid: bool
     frame_stamp: float
     status: Target.Status
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., position: _Optional[_Iterable[float]] = ..., velocity: _Optional[_Iterable[float]] = ..., covariance: _Optional[_Iterable[float]] = ..., valid: _Optional[bool] = ..., frame_stamp: _Optional[float] = ..., status: _Optional[_Union[Target.Status, str]] = ...) -> None: ...
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., position: _Optional[_Iterable[float]] = ..., velocity: _Optional[_Iterable[float]] = ..., covariance: _Optional[_Iterable[float]] = ..., valid: _Optional[bool] = ..., frame_stamp: _Optional[float] = ..., status: _Optional[_Union[Target.Status, str]] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class CameraFrame(_message.Message):
     __slots__ = ("seq", "stamp", "width", "height", "rgb", "depth", "depth_scale", "intrinsics", "frame_stamp")
