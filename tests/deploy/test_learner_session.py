@@ -74,3 +74,36 @@ def test_forged_chunks_neither_wedge_nor_speed_up_nor_steer(robot_hub):
     played = [p for p in played if p[0] >= 0]
     assert len(played) >= n // 2 and set(played) <= signed, "the arm played a chunk the learner did not sign"
     assert "foreign_command" in kinds
+
+
+def test_a_forged_target_never_reaches_the_learner(robot_hub):
+    """A stranger publishing targets (where the arm should reach) on the learner's target key: the env,
+    with the stack's key, keeps robot-io's signed ones only."""
+    stack, probe = robot_hub
+    env = ZenohReachEnv(Bus(open_session(stack.zenoh), stack.name, mac_key(probe.token)), env_settings(stack))
+    stranger = Bus(open_session(stack.zenoh), stack.name)
+    fake = m.Target(position=[0.5, 0.4, 0.6], velocity=[0, 0, 0], covariance=[0.0] * 9, valid=True)
+    fake.status, fake.frame_stamp = m.Target.TRACKING, time.time()
+    pub = stranger.publisher(m.TOPICS[stack.learner.target_topic])
+    stop = threading.Event()
+
+    def forge() -> None:
+        while not stop.wait(0.02):
+            fake.frame_stamp = time.time()
+            pub.put(fake)
+
+    thread = threading.Thread(target=forge, daemon=True)
+    thread.start()
+    try:
+        env.reset(seed=3)
+        seen = []
+        for _ in range(20):
+            env.step(np.zeros(3))
+            seen.append(list(env._target.position))
+    finally:
+        stop.set()
+        thread.join()
+        stranger.close()
+        env.bus.close()
+    assert seen and all(not np.allclose(p, fake.position) for p in seen)
+    assert env.bus.bad_messages.get(stack.learner.target_topic, 0) > 10  # dropped as unsigned, counted
