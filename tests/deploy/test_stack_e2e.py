@@ -25,6 +25,7 @@ SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the f
 
 
 @pytest.mark.e2e
+@pytest.mark.timeout(960)  # 8000 ticks at 20 Hz take ~7 min; its own run's timeout is 900 s
 def test_stack_learns_reach_over_zenoh(tmp_path):
     path, cfg = write_stack_config(tmp_path, "e2e", vision_rate_hz=10.0, steps=STEPS, checkpoint_every=600)
     out = tmp_path / "summary.json"
