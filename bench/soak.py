@@ -39,10 +39,11 @@ from mcap.reader import make_reader
 
 from deploy import messages as m
 from deploy.recording import REJECTED
-from deploy.transport import Bus, ZenohConfig, open_session
+from deploy.stack import PART_COMMANDS, running_parts
+from deploy.transport import Bus, ZenohConfig, open_session, wait_listening
 
 ROOT = Path(__file__).resolve().parents[1]
-PARTS = {"robot-io": "robot_io", "vision": "vision", "learn": "learner", "monitor": "monitor"}
+PARTS = {command: part for part, command in PART_COMMANDS.items()}  # robot-io -> robot_io, ...
 # Every key of the schema but raw camera frames (not published by the sim camera, not recorded).
 WATCHED = [t for t in m.TOPICS.values() if t is not m.CAMERA]
 RESET_PAIR_S = 1.0  # a state-to-chunk wait longer than this is an episode reset, counted apart
@@ -81,20 +82,6 @@ def start_stack(config: Path, run_dir: Path) -> subprocess.Popen:
         return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
-def wait_hub(hub: str, proc: subprocess.Popen, timeout: float = 60.0) -> None:
-    """Block until the supervisor listens on the hub: joining earlier would make this peer the hub."""
-    port = int(hub.rsplit(":", 1)[1])
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            return
-        except OSError:
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"adaptiveh up never listened on {hub} (exit {proc.poll()})") from None
-            time.sleep(0.2)
-
-
 def stop_stack(proc: subprocess.Popen, timeout: float = 180.0) -> int:
     """SIGTERM (a clean stop: the learner checkpoints, the recording is finished); SIGKILL if it hangs."""
     if proc.poll() is None:
@@ -107,20 +94,8 @@ def stop_stack(proc: subprocess.Popen, timeout: float = 180.0) -> int:
 
 
 def parts_of(config: Path) -> dict[str, int]:
-    """pid of each ``deploy.cli <part> --config <config>`` process (Linux: reads /proc)."""
-    found = {}
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            words = [
-                a.decode(errors="replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            ]
-        except OSError:
-            continue
-        if str(config) in words and "deploy.cli" in words:
-            part = words[words.index("deploy.cli") + 1]
-            if part in PARTS:
-                found[PARTS[part]] = int(pid)
-    return found
+    """pid of each part of the stack, by its name here (robot_io, learner, ...)."""
+    return {PARTS[command]: pid for command, pid in running_parts(config).items()}
 
 
 # -- /proc --------------------------------------------------------------------------------------------
@@ -764,7 +739,7 @@ def soak(args: argparse.Namespace, run_dir: Path) -> dict[str, Any]:
     proc = start_stack(path, run_dir)
     observer = None
     try:
-        wait_hub(cfg["zenoh"]["hub"], proc)
+        wait_listening(cfg["zenoh"]["hub"], alive=lambda: proc.poll() is None)
         observer = Observer(ZenohConfig.model_validate(cfg["zenoh"]), cfg["name"])  # as the parts join
         t0 = time.monotonic()
         print(

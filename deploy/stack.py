@@ -38,6 +38,27 @@ from learner.run_summary import h_stats
 log = logging.getLogger(__name__)
 
 
+# Each part of ``adaptiveh up`` and its ``adaptiveh`` subcommand, in start order.
+PART_COMMANDS = {"robot_io": "robot-io", "vision": "vision", "monitor": "monitor", "learner": "learn"}
+
+
+def running_parts(config: str | Path) -> dict[str, int]:
+    """pid of every running ``deploy.cli <part command> --config <config>`` process, by part command
+    (Linux: reads /proc): what a stack, or its orphans, has running on this machine."""
+    commands, found = set(PART_COMMANDS.values()), {}
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        words = [a.decode(errors="replace") for a in args]
+        if str(config) in words and "deploy.cli" in words:
+            command = words[words.index("deploy.cli") + 1]
+            if command in commands:
+                found[command] = int(pid)
+    return found
+
+
 def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]:
     """Validate every section and look for the drivers the config needs; moves nothing."""
     try:
@@ -112,7 +133,7 @@ class Stack:
     def part_commands(self) -> dict[str, list[str]]:
         """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
         local user): it reaches the parts through their environment (``part_environment``)."""
-        cmds = {"robot_io": ["robot-io"], "vision": ["vision"], "monitor": ["monitor"], "learner": ["learn"]}
+        cmds = {part: [command] for part, command in PART_COMMANDS.items()}
         if self.cfg.vision is None:
             del cmds["vision"]
         if self.cfg.monitor is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -110,6 +111,22 @@ def own_listener(hub: str) -> str:
     proto, _, address = hub.partition("/")
     host = address.rsplit(":", 1)[0]
     return f"{proto}/{host}:0"
+
+
+def wait_listening(endpoint: str, timeout: float = 60.0, alive: Callable[[], bool] = lambda: True) -> None:
+    """Block until something accepts TCP connections on ``endpoint`` (a hub's owner, a router): a peer
+    opening its session on a free hub would take the hub itself. ``TimeoutError`` after ``timeout`` s or
+    as soon as ``alive()`` (the process expected to listen) is false."""
+    host, port = endpoint.partition("/")[2].rsplit(":", 1)
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            socket.create_connection((host, int(port)), timeout=1).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline or not alive():
+                raise TimeoutError(f"nothing listened on {endpoint}") from None
+            time.sleep(0.2)
 
 
 def open_session(cfg: ZenohConfig, identity: str | None = None) -> zenoh.Session:

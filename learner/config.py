@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, model_validator
 
 from common.config import Section
 from learner.retreat import RetreatMode
@@ -83,6 +83,16 @@ class AdaptiveHConfig(Section):
         return self
 
 
+def _some_steps(value: int) -> int:
+    if value == 0:
+        raise ValueError("0 trains nothing: use -1 (as many as env steps) or >= 1")
+    return value
+
+
+# Gradient steps per training of an off-policy baseline: -1 (as many as env steps since the last) or >= 1.
+GradientSteps = Annotated[int, Field(ge=-1), AfterValidator(_some_steps)]
+
+
 class SB3Config(Section):
     """TD3/DDPG settings (zoo Pendulum-v1 values, ``learning_starts`` lowered: see learner/baselines.py)."""
 
@@ -93,17 +103,10 @@ class SB3Config(Section):
     batch_size: int = Field(256, ge=1)
     tau: float = Field(0.005, gt=0, le=1)
     train_freq_episodes: int = Field(1, ge=1)
-    gradient_steps: int = Field(-1, ge=-1)  # -1: as many as env steps since the last training
+    gradient_steps: GradientSteps = -1  # -1: as many as env steps since the last training
     noise_std: float = Field(0.1, ge=0)
     net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [400, 300], min_length=1)
     torch_threads: int = Field(1, ge=1)
-
-    @field_validator("gradient_steps")
-    @classmethod
-    def _some_steps(cls, value: int) -> int:
-        if value == 0:
-            raise ValueError("0 trains nothing: use -1 (as many as env steps) or >= 1")
-        return value
 
 
 class SACConfig(Section):
@@ -116,18 +119,11 @@ class SACConfig(Section):
     batch_size: int = Field(256, ge=1)
     tau: float = Field(0.005, gt=0, le=1)
     train_freq: int = Field(1, ge=1)  # env steps between trainings
-    gradient_steps: int = Field(1, ge=-1)  # per training; -1: as many as env steps since the last one
+    gradient_steps: GradientSteps = 1  # per training; -1: as many as env steps since the last one
     ent_coef: Literal["auto"] | Annotated[float, Field(gt=0)] = "auto"
     use_sde: bool = False
     net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [256, 256], min_length=1)
     torch_threads: int = Field(1, ge=1)
-
-    @field_validator("gradient_steps")
-    @classmethod
-    def _some_steps(cls, value: int) -> int:
-        if value == 0:
-            raise ValueError("0 trains nothing: use -1 (as many as env steps) or >= 1")
-        return value
 
 
 class PPOConfig(Section):

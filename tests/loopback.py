@@ -9,7 +9,6 @@ cannot be taken at that moment; it is released at once for the Zenoh listener th
 from __future__ import annotations
 
 import socket
-import time
 import uuid
 
 
@@ -29,16 +28,3 @@ def unique_name(prefix: str) -> str:
     """A robot name no other test or run uses: its Zenoh keys (``adaptiveh/<name>/…``) are private."""
     return f"{prefix}{uuid.uuid4().hex[:12]}"
 
-
-def wait_listening(endpoint: str, timeout: float = 60.0) -> None:
-    """Block until something accepts TCP connections on ``endpoint`` (a hub or router coming up)."""
-    port = int(endpoint.rsplit(":", 1)[1])
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise AssertionError(f"nothing listened on {endpoint} within {timeout} s") from None
-            time.sleep(0.2)

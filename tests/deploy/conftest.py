@@ -6,12 +6,12 @@ import secrets
 
 import pytest
 from bus_probe import BusProbe
-from loopback import free_endpoint, unique_name, wait_listening
+from loopback import free_endpoint, unique_name
 from stack_helpers import running_part
 
 from deploy import messages as m
 from deploy.config import StackConfig
-from deploy.transport import Bus, open_session
+from deploy.transport import Bus, open_session, wait_listening
 
 RATE = 20.0
 

@@ -17,24 +17,10 @@ import yaml
 from loopback import free_endpoint, unique_name
 
 from deploy.commands import TOKEN_ENV
+from deploy.stack import PART_COMMANDS, running_parts
 
-PARTS = ("robot-io", "vision", "learn", "monitor")  # what ``adaptiveh up`` runs on configs/sim.yaml
-
-
-def parts_of(config: Path) -> dict[str, int]:
-    """pid of every running ``deploy.cli <part> --config <config>`` process (Linux: reads /proc)."""
-    found = {}
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        words = [a.decode(errors="replace") for a in args]
-        if str(config) in words and "deploy.cli" in words:
-            part = words[words.index("deploy.cli") + 1]
-            if part in PARTS:
-                found[part] = int(pid)
-    return found
+PARTS = tuple(PART_COMMANDS.values())  # what ``adaptiveh up`` runs on configs/sim.yaml
+parts_of = running_parts  # pid of each running part of a config, by its command
 
 
 def write_stack_config(
@@ -92,7 +78,7 @@ def running_part(
     try:
         try:
             ready()
-        except AssertionError:
+        except (AssertionError, TimeoutError):
             proc.kill()
             pytest.fail(f"{part} did not come up:\n{proc.communicate()[0]}")
         yield proc
@@ -137,10 +123,17 @@ def start_up(path: Path, timeout: float = 60.0) -> tuple[subprocess.Popen, str]:
         text=True,
     )
     token = up.stdout.readline().strip().removeprefix("operator token: ")
+    wait_for_parts(path, up, timeout)
+    return up, token
+
+
+def wait_for_parts(path: Path, up: subprocess.Popen, timeout: float = 60.0) -> dict[str, int]:
+    """The pids of ``adaptiveh up``'s parts once all of ``PARTS`` run; the test fails (and ``up`` is
+    killed) if they do not within ``timeout`` s or ``up`` ends."""
     deadline = time.monotonic() + timeout
     while set(parts_of(path)) != set(PARTS):
         if time.monotonic() > deadline or up.poll() is not None:
             up.kill()
             pytest.fail(f"adaptiveh up: parts up {sorted(parts_of(path))}, exit {up.poll()}")
-        time.sleep(0.5)
-    return up, token
+        time.sleep(0.2)
+    return parts_of(path)

@@ -58,7 +58,7 @@ from urllib.parse import urlsplit
 import numpy as np
 import pytest
 from bus_probe import BusProbe
-from stack_helpers import PARTS, parts_of, write_stack_config
+from stack_helpers import parts_of, wait_for_parts, write_stack_config
 
 from deploy import messages as m
 from deploy.config import load_stack_config
@@ -273,11 +273,7 @@ class Stack:
         self.token = self.lines[0].removeprefix("operator token: ")
         self.url = next(x for x in self.lines if x.startswith("monitor: ")).split(" ")[1].split("?")[0]
         assert len(self.token) >= 12 and self.url.startswith("http://127.0.0.1:"), self.lines
-        deadline = time.monotonic() + 60
-        while set(parts_of(self.path)) != set(PARTS):  # join once the supervisor holds the loopback hub
-            assert time.monotonic() < deadline and self.up.poll() is None, f"parts: {parts_of(self.path)}"
-            time.sleep(0.2)
-        self.pids = parts_of(self.path)
+        self.pids = wait_for_parts(self.path, self.up)  # join once the supervisor holds the loopback hub
         self.restarts = 0  # learners that died and were restarted during the trials
         self.probe = BusProbe(Bus(open_session(self.cfg.zenoh), self.cfg.name, mac_key(self.token)))
         # With the stack's key: only what the stack signed (states, controls, learner progress).

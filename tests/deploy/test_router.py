@@ -9,12 +9,12 @@ import time
 import numpy as np
 import yaml
 from bus_probe import BusProbe
-from loopback import free_endpoint, unique_name, wait_listening
+from loopback import free_endpoint, unique_name
 from stack_helpers import learn_one_episode
 
 from deploy import messages as m
 from deploy.config import load_stack_config
-from deploy.transport import Bus, open_session
+from deploy.transport import Bus, open_session, wait_listening
 
 
 def test_two_routers_carry_a_run(tmp_path):
