@@ -17,7 +17,7 @@ from collections.abc import Callable
 from typing import ClassVar, Self
 
 from deploy.signing import mac_key
-from deploy.transport import Bus, ZenohConfig, open_session
+from deploy.transport import Bus, ZenohConfig
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ class Node:
         """``token``: the stack's operator token; the part's bus signs and verifies with its key."""
         if bus is None and zenoh is None:
             raise ValueError("a node needs a Zenoh config or a bus")
-        self.bus = bus if bus is not None else Bus(open_session(zenoh), robot, mac_key(token))
+        self.bus = bus if bus is not None else Bus.open(zenoh, robot, mac_key(token))
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 

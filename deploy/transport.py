@@ -14,6 +14,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import zenoh
@@ -28,6 +29,7 @@ from deploy.signing import ForgedMessage, authentic, sign, signed
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
 R = TypeVar("R", bound=Message)
+T = TypeVar("T")
 
 
 Endpoint = Annotated[str, Field(pattern=r"^[a-z][a-z0-9-]*/.+")]
@@ -142,16 +144,25 @@ def open_session(cfg: ZenohConfig, identity: str | None = None) -> zenoh.Session
     the other peers, which connect to it directly (a full mesh), so any number of parts reach each other
     and the mesh survives the hub's owner leaving.
     """
+    return _open(cfg, identity)[0]
+
+
+def _open(cfg: ZenohConfig, identity: str | None) -> tuple[zenoh.Session, Callable[[], zenoh.Session] | None]:
+    """``open_session``, and how to open a second session like it beside the first (None where the first
+    holds a fixed listener, such as the hub, that the second would need)."""
     me = security.process_identity() if identity is None else identity
     if cfg.connect or cfg.listen:
-        return zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen), me))
+        again = lambda: zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen), me))  # noqa: E731
+        return again(), None if cfg.listen else again
     if cfg.mode == "client":
-        return zenoh.open(_config(cfg, [cfg.hub], [], me))
+        again = lambda: zenoh.open(_config(cfg, [cfg.hub], [], me))  # noqa: E731
+        return again(), again
     try:
-        return zenoh.open(_config(cfg, [], [cfg.hub], me))
+        return zenoh.open(_config(cfg, [], [cfg.hub], me)), None
     except zenoh.ZError:
         log.info("zenoh hub %s already taken; joining through it", cfg.hub)
-        return zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)], me))
+        again = lambda: zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)], me))  # noqa: E731
+        return again(), again
 
 
 class Publisher(Generic[M]):
@@ -202,8 +213,97 @@ class Bus:
         self.robot = robot
         self.signing_key = key
         self.bad_messages: dict[str, int] = {}
+        self.renewals = 0  # sessions reopened after a stall (``open``)
         self._lock = threading.Lock()
-        self._declared: list[Any] = []
+        self._declared: list[_Declared] = []
+        self._renew_lock = threading.RLock()  # declarations and renewals, one at a time
+        self._closed = threading.Event()
+        self._reopen: Callable[[], zenoh.Session] | None = None  # how ``renew`` opens a session like this one
+
+    @classmethod
+    def open(cls, cfg: ZenohConfig, robot: str, key: bytes | None = None, identity: str | None = None) -> Bus:
+        """A bus on its own session that reopens that session when this process was stalled.
+
+        A process stopped (SIGSTOP, swap, a debugger) for about a lease comes back to links that only
+        some of its peers expired: Zenoh then keeps a half-closed link that nothing remakes (its gossip
+        speaks only when a link is added; eclipse-zenoh/zenoh#2806), and a peer may never hear this
+        process again (seen: the test's peer lost robot-io's states for good after a 1 s SIGSTOP). Past
+        ``STALL_LEASES`` of its lease the process closes its session and opens a fresh one with every
+        declaration remade, which every peer sees as a part leaving and coming back. Not for a session
+        that holds a fixed listener (the hub's owner): the new one could not listen beside it.
+        """
+        session, again = _open(cfg, identity)
+        bus = cls(session, robot, key)
+        bus._reopen = again
+        if again is not None:
+            stall_s = STALL_LEASES * cfg.lease_ms / 1000
+            threading.Thread(
+                target=bus._guard, args=(stall_s,), name="zenoh-stall-guard", daemon=True
+            ).start()
+        return bus
+
+    def declare(self, make: Callable[[zenoh.Session], T]) -> T:
+        """``make(session)``'s declaration (a subscriber, a token, …): undeclared on ``close`` and made
+        again on a renewed session."""
+        with self._renew_lock:
+            obj = make(self.session)
+            self._declared.append(_Declared(make, obj))
+            return obj
+
+    def _guard(self, stall_s: float) -> None:
+        """Watch this process's own clocks: a tick that took ``stall_s`` longer than asked while the
+        process used almost no CPU means it was stopped or starved (Zenoh's threads with it). A thread
+        holding the GIL (a long pickle) delays the tick too, but burns CPU, and Zenoh's own threads,
+        outside the GIL, kept the links alive: no renewal then."""
+        tick = 0.1
+        last, cpu = time.monotonic(), time.process_time()
+        while not self._closed.wait(tick):
+            now, now_cpu = time.monotonic(), time.process_time()
+            stalled, used = now - last - tick, now_cpu - cpu
+            last, cpu = now, now_cpu
+            if stalled > stall_s and used < 0.25 * (stalled + tick):
+                log.warning(
+                    "this process was stalled %.2f s (Zenoh lease %.2f s): reopening its Zenoh session",
+                    stalled,
+                    stall_s / STALL_LEASES,
+                )
+                self.renew()
+
+    def renew(self) -> bool:
+        """Swap the session for a fresh one like it, remaking every declaration on it; False (the old
+        session kept) if the new one cannot be opened. Publishers wait meanwhile; no subscriber is on
+        both. Only for a bus from ``open`` that holds no fixed listener (ValueError otherwise)."""
+        if self._reopen is None:
+            raise ValueError(
+                "this bus cannot renew its session: it holds a fixed listener or came from outside"
+            )
+        try:
+            fresh = self._reopen()
+        except zenoh.ZError as exc:
+            log.error("could not reopen the Zenoh session (%s); keeping the old one", exc)
+            return False
+        with self._renew_lock:
+            if self._closed.is_set():
+                fresh.close()
+                return False
+            publishers = [d.publisher for d in self._declared if d.publisher is not None]
+            for pub in publishers:
+                pub._lock.acquire()
+            try:
+                for d in reversed(self._declared):
+                    if d.publisher is None:
+                        _undeclare(d.obj)
+                old, self.session = self.session, fresh
+                for d in self._declared:
+                    d.obj = d.make(fresh)
+                    if d.publisher is not None:
+                        d.publisher._pub = d.obj
+            finally:
+                for pub in publishers:
+                    pub._lock.release()
+            old.close()
+            self.renewals += 1
+        return True
 
     def key(self, topic: Topic[Any] | Service[Any, Any] | str) -> str:
         return messages.key(self.robot, topic if isinstance(topic, str) else topic.name)
@@ -222,14 +322,20 @@ class Bus:
     ) -> Publisher[M]:
         """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed)."""
         congestion = zenoh.CongestionControl
-        pub = self.session.declare_publisher(
-            self.key(topic),
-            express=express,
-            priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
-            congestion_control=congestion.BLOCK if topic.never_drop else congestion.DROP,
-        )
-        self._declared.append(pub)
-        return Publisher(pub, topic, first_seq, self._sealer(topic.type, seal))
+
+        def make(session: zenoh.Session) -> zenoh.Publisher:
+            return session.declare_publisher(
+                self.key(topic),
+                express=express,
+                priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
+                congestion_control=congestion.BLOCK if topic.never_drop else congestion.DROP,
+            )
+
+        with self._renew_lock:
+            pub = make(self.session)
+            wrapper = Publisher(pub, topic, first_seq, self._sealer(topic.type, seal))
+            self._declared.append(_Declared(make, pub, wrapper))
+        return wrapper
 
     def _sealer(self, cls: type[M], seal: Callable[[M], None] | None) -> Callable[[M], None] | None:
         key = self.signing_key
@@ -269,7 +375,7 @@ class Bus:
             except Exception:  # a handler bug must not kill Zenoh's thread
                 log.exception("handler for %s failed", self.key(topic))
 
-        self._declared.append(self.session.declare_subscriber(self.key(topic), handler))
+        self.declare(lambda s: s.declare_subscriber(self.key(topic), handler))
 
     def queryable(self, service: Service[M, R], handler: Callable[[M], R]) -> None:
         """Answer queries: the payload decodes to the request type, the reply is ``handler``'s."""
@@ -290,7 +396,7 @@ class Bus:
                 log.exception("queryable %s failed", self.key(service))
                 query.reply_err(f"{type(exc).__name__}: {exc}".encode())
 
-        self._declared.append(self.session.declare_queryable(self.key(service), on_query))
+        self.declare(lambda s: s.declare_queryable(self.key(service), on_query))
 
     def query(
         self,
@@ -316,9 +422,7 @@ class Bus:
 
     def declare_alive(self, name: str) -> zenoh.LivelinessToken:
         """Declare this process's liveliness token ``adaptiveh/<robot>/alive/<name>``."""
-        token = self.session.liveliness().declare_token(self.key(f"{messages.LIVELINESS}/{name}"))
-        self._declared.append(token)
-        return token
+        return self.declare(lambda s: s.liveliness().declare_token(self.key(f"{messages.LIVELINESS}/{name}")))
 
     def watch_alive(self, on_change: Callable[[str, bool], None], below: str = "") -> None:
         """``on_change(name, alive)`` for every peer token (``alive/<name>``, or ``alive/<below>/<name>``),
@@ -329,14 +433,31 @@ class Bus:
             name = str(sample.key_expr)[len(prefix) :]
             on_change(name, sample.kind == zenoh.SampleKind.PUT)
 
-        sub = self.session.liveliness().declare_subscriber(prefix + "*", handler, history=True)
-        self._declared.append(sub)
+        self.declare(lambda s: s.liveliness().declare_subscriber(prefix + "*", handler, history=True))
 
     def close(self) -> None:
-        for obj in reversed(self._declared):
-            try:
-                obj.undeclare()
-            except Exception as exc:  # already gone with the session
-                log.debug("undeclare: %s", exc)
-        self._declared.clear()
-        self.session.close()
+        with self._renew_lock:
+            self._closed.set()
+            for d in reversed(self._declared):
+                _undeclare(d.obj)
+            self._declared.clear()
+            self.session.close()
+
+
+STALL_LEASES = 0.6
+"""A stall this many leases long makes ``Bus.open``'s bus renew its session: peers send a keep-alive every
+quarter lease, so the earliest of them expires a stopped process's link after 3/4 of a lease."""
+
+
+@dataclass
+class _Declared:
+    make: Callable[[zenoh.Session], Any]  # declares it on a session
+    obj: Any  # the declaration on the current session
+    publisher: Publisher[Any] | None = None  # the wrapper that puts through ``obj``
+
+
+def _undeclare(obj: Any) -> None:
+    try:
+        obj.undeclare()
+    except Exception as exc:  # already gone with the session
+        log.debug("undeclare: %s", exc)

@@ -65,6 +65,8 @@ from deploy.config import load_stack_config
 from deploy.signing import mac_key
 from deploy.transport import Bus, open_session
 
+pytestmark = pytest.mark.slow  # ~1 min of 100 trials under load: `.ci/run` runs it after the default run
+
 TRIALS = int(os.environ.get("ADAPTIVEH_ESTOP_TRIALS", "100"))
 MOVING = 0.3  # rad/s: the arm is moving (test_05 waits for this joint speed before its e-stop)
 STILL = 0.01  # rad/s: the arm is still (test_05's criterion)

@@ -94,8 +94,8 @@ def _wait(pred, timeout=5.0) -> bool:
 def _heard(listener: Bus, *keys: str) -> dict[str, list[bytes]]:
     got: dict[str, list[bytes]] = {k: [] for k in keys}
     for k in keys:
-        listener._declared.append(
-            listener.session.declare_subscriber(
+        listener.declare(
+            lambda session, k=k: session.declare_subscriber(
                 listener.key(k), lambda s, k=k: got[k].append(s.payload.to_bytes())
             )
         )
@@ -109,8 +109,9 @@ def test_the_learner_commands_and_every_identity_reads(bus):
     learner, robot, vision = join("learner"), join("robot-io"), join("vision")
     at_robot, at_vision = _heard(robot, "cmd/chunk"), _heard(vision, "cmd/chunk")
     at_learner = _heard(learner, "cmd/status")
-    reset = robot.session.declare_queryable(robot.key(m.RESET), lambda q: q.reply(q.key_expr, b"reset done"))
-    robot._declared.append(reset)
+    robot.declare(
+        lambda s: s.declare_queryable(robot.key(m.RESET), lambda q: q.reply(q.key_expr, b"reset done"))
+    )
     time.sleep(0.5)  # the subscriptions reach the publishers through the router
     learner.session.put(learner.key("cmd/chunk"), b"chunk 1")
     robot.session.put(robot.key("cmd/status"), b"chunk 1 executed")
@@ -163,8 +164,8 @@ def test_only_the_learner_puts_commands_and_only_the_monitor_controls(bus):
     got = _heard(listener, "cmd/chunk", "cmd/status", "control")
     alive: list[str] = []
     prefix = listener.key(m.LIVELINESS) + "/"
-    listener._declared.append(
-        listener.session.liveliness().declare_subscriber(
+    listener.declare(
+        lambda session: session.liveliness().declare_subscriber(
             prefix + "**", lambda s: alive.append(str(s.key_expr).removeprefix(prefix))
         )
     )
