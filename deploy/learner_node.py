@@ -31,6 +31,7 @@ from deploy.signing import Fresh, authentic
 from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
+from learner.run_archive import SegmentArchive
 from learner.run_summary import summarize
 
 log = logging.getLogger(__name__)
@@ -84,7 +85,8 @@ class LearnerNode(Node):
         self._pub_tel = self.bus.publisher(m.TELEMETRY_LEARNER)
         self._paused = threading.Event()
         self._episodes_seen = len(self.agent.log.episodes)
-        self._segments_seen = len(self.agent.log.segments)
+        self._segments_seen = self.agent.log.segment_count
+        self.archive = SegmentArchive(self.ckpt.parent / "segments.jsonl", self.agent.log)
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
         self.retreat_dropped_moving = 0  # plan mode: of the retreat-dropped actions, the non-zero ones
@@ -146,7 +148,7 @@ class LearnerNode(Node):
 
     def _after_step(self) -> None:
         lg = self.agent.log
-        for rec in lg.segments[self._segments_seen :]:
+        for rec in lg.segments[len(lg.segments) - (lg.segment_count - self._segments_seen) :]:
             self._pub_retreat(
                 m.RetreatEvent(
                     segment=rec.index,
@@ -161,7 +163,9 @@ class LearnerNode(Node):
             self.env.next_plan_reason = rec.reason  # plan mode: the next plan is this segment end's
             if rec.reason == "retreat" and self.cfg.execution == "closed_loop":
                 self._retreat_chunks.add(self.env.chunk_seq + 1)  # the next chunk opens the new segment
-        self._segments_seen = len(lg.segments)
+        if lg.segment_count > self._segments_seen:
+            self._segments_seen = lg.segment_count
+            self.archive.add(lg)  # on file; memory keeps the newest
         if len(lg.episodes) > self._episodes_seen:
             self._episodes_seen = len(lg.episodes)
             self._telemetry()
@@ -211,10 +215,11 @@ class LearnerNode(Node):
         return self.result(wall, self.agent.log.global_step - start)
 
     def result(self, wall: float, steps: int) -> dict[str, Any]:
+        full = self.archive.full(self.agent.log)
         out = {
             "algo": self.cfg.algo,
             "config": self.cfg.model_dump(),
-            "summary": summarize(self.agent.log),
+            "summary": summarize(full),
             "resumed_from": self.resumed_from,
             "steps_this_session": steps,
             "wall_clock_s": wall,
@@ -231,7 +236,7 @@ class LearnerNode(Node):
             "retreat_preemptions": self.retreat_preemptions,
             "retreat_dropped": self.retreat_dropped,
             "retreat_dropped_moving": self.retreat_dropped_moving,
-            **self.agent.log.to_dict(),
+            **full.to_dict(),
         }
         path = self.ckpt.parent / "result.json"
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -62,7 +62,6 @@ def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
     )
 
 
-
 def prioritize_this_thread(nice: int) -> None:
     """Ask Linux for ``nice`` on the calling thread (its own task); a refusal is logged, once, as what it
     costs: under CPU contention the control loop then waits its turn like any other thread."""
@@ -77,6 +76,7 @@ def prioritize_this_thread(nice: int) -> None:
             nice,
             exc,
         )
+
 
 class RobotIONode(Node):
     """Run with ``start()``/``stop()`` (or as a context manager); the control loop is its one worker."""

@@ -321,7 +321,7 @@ class AdaptiveH:
         else:
             self.policy.update(states, grads, cfg.alpha, cfg.weight_decay, cfg.mean_limit)
         record = SegmentRecord(
-            index=len(self.log.segments),
+            index=self.log.segment_count,
             global_step=self.log.global_step,
             H=len(states),
             reason=reason,

@@ -46,12 +46,20 @@ class RunLog:
     episodes: list[EpisodeRecord] = field(default_factory=list)
     segments: list[SegmentRecord] = field(default_factory=list)
     global_step: int = 0
+    # Segments moved out of memory before ``segments[0]`` (learner.run_archive, for runs of days).
+    segments_before: int = 0
+
+    @property
+    def segment_count(self) -> int:
+        """Every segment of the run, in memory or not: the next segment's index."""
+        return self.segments_before + len(self.segments)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "global_step": self.global_step,
             "episodes": [asdict(e) for e in self.episodes],
             "segments": [asdict(s) for s in self.segments],
+            "segments_before": self.segments_before,
         }
 
     @classmethod
@@ -60,6 +68,7 @@ class RunLog:
             episodes=[EpisodeRecord(**e) for e in data.get("episodes", [])],
             segments=[SegmentRecord(**s) for s in data.get("segments", [])],
             global_step=int(data.get("global_step", 0)),
+            segments_before=int(data.get("segments_before", 0)),
         )
 
 

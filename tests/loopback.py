@@ -27,4 +27,3 @@ def free_endpoint() -> str:
 def unique_name(prefix: str) -> str:
     """A robot name no other test or run uses: its Zenoh keys (``adaptiveh/<name>/…``) are private."""
     return f"{prefix}{uuid.uuid4().hex[:12]}"
-

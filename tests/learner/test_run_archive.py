@@ -1,0 +1,65 @@
+"""The segment archive: a long run keeps only its newest segments in memory, the file has every one,
+and a resume from a checkpoint drops what the resume undid."""
+
+from __future__ import annotations
+
+import copy
+
+import gymnasium as gym
+
+import sim  # noqa: F401  (registers the environments)
+from learner.adaptiveh import AdaptiveH
+from learner.config import AdaptiveHConfig
+from learner.protocol import RunLog, SegmentRecord
+from learner.run_archive import SegmentArchive
+
+
+def _close(log: RunLog, reason: str = "retreat") -> None:
+    """What an RKHS learner does when a segment ends."""
+    log.global_step += 3
+    log.segments.append(
+        SegmentRecord(log.segment_count, log.global_step, 3, reason, [0.1, 0.2, 0.3], threshold=0.5)
+    )
+
+
+def test_memory_keeps_the_newest_and_the_file_every_segment(tmp_path):
+    log = RunLog()
+    archive = SegmentArchive(tmp_path / "segments.jsonl", log, keep=50)
+    for _ in range(1000):
+        _close(log)
+        archive.add(log)
+        assert len(log.segments) < 2 * archive.keep
+    assert log.segment_count == 1000 and log.segments[-1].index == 999
+    full = archive.full(log)
+    assert [s.index for s in full.segments] == list(range(1000))
+    assert full.segments[500].statistic == [0.1, 0.2, 0.3] and full.global_step == 3000
+
+
+def test_a_resume_drops_the_segments_it_undid(tmp_path):
+    path = tmp_path / "segments.jsonl"
+    log = RunLog()
+    archive = SegmentArchive(path, log, keep=50)
+    for i in range(300):
+        _close(log)
+        archive.add(log)
+        if i == 199:
+            checkpoint = copy.deepcopy(RunLog.from_dict(log.to_dict()))  # what the checkpoint holds
+    restored = checkpoint  # the learner died after segment 299 and restarts from the checkpoint
+    archive = SegmentArchive(path, restored, keep=50)
+    for _ in range(20):
+        _close(restored, "h_max")
+        archive.add(restored)
+    full = archive.full(restored)
+    assert [s.index for s in full.segments] == list(range(220))
+    assert {s.reason for s in full.segments[200:]} == {"h_max"}  # the redone ones, not the undone
+
+
+def test_adaptiveh_numbers_segments_on_past_the_trimmed_ones(tmp_path):
+    env = gym.make("NSCartPoleContinuous-v0")
+    agent = AdaptiveH(env, AdaptiveHConfig(h_max=5), seed=0)
+    archive = SegmentArchive(tmp_path / "segments.jsonl", agent.log, keep=20)
+    agent.learn(600, callback=lambda step, lg: archive.add(lg))
+    full = archive.full(agent.log)
+    assert agent.log.segments_before > 0 and len(agent.log.segments) < 40
+    assert [s.index for s in full.segments] == list(range(agent.log.segment_count))
+    assert sum(s.H for s in full.segments) <= 600
