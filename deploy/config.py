@@ -102,6 +102,9 @@ class RecordingConfig(Section):
     exclude: tuple[str, ...] = ()
     # Written to disk at least this often: a supervisor killed outright loses at most this much.
     flush_s: float = Field(1.0, gt=0, le=60)
+    # A new file (<name>.part2.mcap, ...) after this long: the MCAP writer's index grows with each flush
+    # until its file ends. ``adaptiveh replay`` and ``recording.read`` of the first file read them all.
+    split_s: float = Field(900.0, ge=10)
 
 
 class SupervisorConfig(Section):

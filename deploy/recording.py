@@ -65,7 +65,10 @@ class Recorder:
     ``deriver``: writes the Foxglove channels derived from each valid message too (the stack passes one
     built from its config; without one the file holds the raw channels only). ``flush_s``: the data are
     written out (as a finished chunk) at least this often, so a recorder killed outright (SIGKILL, power
-    loss) leaves a file that ``read`` opens with everything up to its last flush.
+    loss) leaves a file that ``read`` opens with everything up to its last flush. ``split_s``: a file is
+    finished and the next part (``<stem>.part2.mcap``, …; ``parts``) begun after this long, because an
+    MCAP writer keeps one chunk index per flush in memory until the file ends (the soak's supervisor
+    grew ~4 MB an hour with 1 s flushes); ``read`` of the first part reads them all.
     """
 
     def __init__(
@@ -76,16 +79,15 @@ class Recorder:
         exclude: tuple[str, ...] = (),
         deriver: Deriver | None = None,
         flush_s: float = 1.0,
+        split_s: float = 900.0,
     ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "wb")
-        self._writer = Writer(self._fh)
-        self._writer.start(profile="", library="adaptiveh")
+        self.parts: list[Path] = []
+        self._split_s = split_s
         self._lock = threading.Lock()
-        self._schemas: dict[str, int] = {}
-        self._channels: dict[str, int] = {}
-        self._seq: dict[str, int] = {}
+        self._begin(self.path)
+        self._seq: dict[str, int] = {}  # per key, across parts
         self._deriver = deriver
         self.derived = 0
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
@@ -96,10 +98,26 @@ class Recorder:
         self._flusher.start()
         self._sub = session.declare_subscriber(f"{NAMESPACE}/{robot}/**", self._on_sample)
 
+    def _begin(self, path: Path) -> None:
+        """Start the file ``path`` (schemas and channels are registered again in each part)."""
+        self._fh = open(path, "wb")
+        self._writer = Writer(self._fh)
+        self._writer.start(profile="", library="adaptiveh")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._started = time.monotonic()
+        self.parts.append(path)
+
     def _flush_every(self, period: float) -> None:
         while not self._done.wait(period):
             with self._lock:
-                if not self._closed:
+                if self._closed:
+                    continue
+                if time.monotonic() - self._started >= self._split_s:
+                    self._writer.finish()
+                    self._fh.close()
+                    self._begin(part_path(self.path, len(self.parts) + 1))
+                else:
                     self._writer.flush()
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -170,14 +188,34 @@ class Recorder:
                 self._fh.close()
 
 
+def part_path(first: Path, n: int) -> Path:
+    """The ``n``-th file (from 2) of the recording that begins with ``first``: ``<stem>.part<n>.mcap``."""
+    return first.with_name(f"{first.stem}.part{n}{first.suffix}")
+
+
+def parts(path: str | Path) -> list[Path]:
+    """The files of the recording that begins with ``path``, in order."""
+    out, first = [Path(path)], Path(path)
+    while part_path(first, len(out) + 1).exists():
+        out.append(part_path(first, len(out) + 1))
+    return out
+
+
 def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
-    """All messages of a recording as (key, schema name, log_time ns, payload), in time order.
+    """All messages of a recording (every part from ``path`` on) as (key, schema name, log_time ns,
+    payload), in time order.
 
     A file whose recorder was killed outright has no summary and ends mid-record: it is read as a
     stream up to its last whole record, with a warning (everything up to the recorder's last flush).
     Recordings made before the protobuf schema (msgpack channels) are refused with a RecordingError.
     The derived Foxglove channels are read too (the JSON ones among them); ``replayable`` drops them.
     """
+    out = [r for part in parts(path) for r in _read_file(part)]
+    out.sort(key=lambda r: r[2])
+    return out
+
+
+def _read_file(path: Path) -> list[tuple[str, str, int, bytes]]:
     schemas: dict[int, str] = {}
     channels: dict[int, McapChannel] = {}
     out = []
@@ -195,7 +233,6 @@ def read(path: str | Path) -> list[tuple[str, str, int, bytes]]:
                     out.append((channel.topic, name, record.log_time, record.data))
         except (McapError, struct.error) as exc:
             log.warning("%s ends early (%s): read to its last whole record, %d messages", path, exc, len(out))
-    out.sort(key=lambda r: r[2])
     return out
 
 

@@ -30,7 +30,7 @@ from deploy import messages as m
 from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
 from deploy.foxglove.derive import Deriver, SceneSetup
-from deploy.recording import Recorder
+from deploy.recording import Recorder, parts
 from deploy.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
 from deploy.transport import Bus, open_session
 from learner.run_summary import h_stats
@@ -122,7 +122,7 @@ class Stack:
         self.gave_up = ""  # the part that used its restarts, which ended the run
         self._stop = threading.Event()
         # What the summary needs, not the messages (kept, they grew the supervisor ~4 MB an hour).
-        self.segment_h: list[int] = []
+        self.segment_h: Counter[int] = Counter()  # segments by length H (bounded: H <= h_max)
         self.reasons: Counter[str] = Counter()  # segments by why they closed
         self.safety_kinds: Counter[str] = Counter()
         self.telemetry: m.LearnerTelemetry | None = None  # the newest
@@ -237,6 +237,7 @@ class Stack:
                 self.recording.exclude,
                 deriver=Deriver(self.name, SceneSetup.from_stack(self.cfg)),
                 flush_s=self.recording.flush_s,
+                split_s=self.recording.split_s,
             )
         bus.subscribe(m.EVENTS_RETREAT, self._on_segment)
         bus.subscribe(m.EVENTS_SAFETY, lambda e: self.safety_kinds.update([m.label(e, "kind")]))
@@ -271,7 +272,7 @@ class Stack:
         return self.summary(time.monotonic() - t0)
 
     def _on_segment(self, e: m.RetreatEvent) -> None:
-        self.segment_h.append(e.H)
+        self.segment_h.update([e.H])
         self.reasons.update([m.label(e, "reason")])
 
     def _on_telemetry(self, t: m.LearnerTelemetry) -> None:
@@ -279,7 +280,7 @@ class Stack:
             self.telemetry = t
 
     def _progress_line(self, elapsed: float) -> str:
-        tel, segments = self.telemetry, len(self.segment_h)
+        tel, segments = self.telemetry, self.segment_h.total()
         retreats = self.reasons["retreat"]
         if tel is None:
             return f"[{elapsed:5.0f} s] waiting for the first episode; segments {segments}"
@@ -311,7 +312,7 @@ class Stack:
         quarters = [
             float(np.mean(succ[i * q : (i + 1) * q])) if succ[i * q : (i + 1) * q] else None for i in range(4)
         ]
-        H = self.segment_h
+        H = sorted(self.segment_h.elements())
         return {
             "wall_clock_s": wall,
             "episodes": len(eps),
@@ -326,6 +327,7 @@ class Stack:
             "retreat_dropped": result.get("retreat_dropped"),
             "safety_events": dict(self.safety_kinds),
             "recording": str(self.recording_path) if self.recording_path else None,
+            "recording_parts": [str(p) for p in parts(self.recording_path)] if self.recording_path else None,
             "learner_result": str(result_path),
             "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},
             "restarts": dict(self.restarts),

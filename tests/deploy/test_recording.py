@@ -275,3 +275,33 @@ def test_old_msgpack_recordings_are_refused_clearly(tmp_path: Path) -> None:
         writer.finish()
     with pytest.raises(RecordingError, match="'msgpack'; this build reads protobuf recordings only"):
         read(path)
+
+
+def test_a_long_recording_is_split_and_reads_back_whole(tmp_path: Path, endpoint: str) -> None:
+    """Past ``split_s`` the recorder finishes its file and begins ``<stem>.part2.mcap``: the MCAP writer's
+    chunk index stays small. Each part is a whole MCAP file with its own schemas; ``read`` of the first
+    reads every part, the per-key sequence going on across them."""
+    from deploy.recording import Recorder, parts, read
+
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    path = tmp_path / "long.mcap"
+    recorder = Recorder(session, "sp", path, flush_s=0.1, split_s=0.4)
+    try:
+        for seq in range(1, 61):
+            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1)
+            session.put("adaptiveh/sp/cmd/status", status.SerializeToString())
+            time.sleep(0.025)
+    finally:
+        recorder.close()
+        session.close()
+    assert len(recorder.parts) >= 3 and parts(path) == recorder.parts
+    assert recorder.parts[1].name == "long.part2.mcap"
+    got = [m.decode(d, m.ChunkStatus).seq for k, _, _, d in read(path) if k == "adaptiveh/sp/cmd/status"]
+    assert got == list(range(1, 61))
+    per_part = []
+    for part in recorder.parts:  # each opens on its own, with the mcap reader and its summary
+        with open(part, "rb") as fh:
+            msgs = list(make_reader(fh).iter_messages())
+        per_part.append(len(msgs))
+        assert all(schema.name == "adaptiveh.ChunkStatus" for schema, _, _ in msgs)
+    assert sum(per_part) == 60 and min(per_part[:-1]) > 0
