@@ -62,12 +62,16 @@ class Topic(Generic[M]):
     ``urgent`` topics (the operator's commands, safety events) go at Zenoh's real-time priority, ahead of
     the state and camera traffic that congests a busy link; ``never_drop`` ones make the publisher wait
     for queue space rather than lose the message (only for rare messages put outside the control loop).
+    ``kept``: the publisher keeps its newest this many messages, so a subscriber that missed some (a
+    recorder stopped for seconds) asks for them back (Zenoh's advanced publisher: cache, heartbeat);
+    0 for the camera's images, too big to keep and replaced by the next one anyway.
     """
 
     name: str
     type: type[M]
     urgent: bool = False
     never_drop: bool = False
+    kept: int = 0
 
     def key(self, robot: str) -> str:
         return key(robot, self.name)
@@ -89,19 +93,20 @@ class Service(Generic[M, R]):
 
 
 # The topics of DESIGN section 6, each bound to its type once.
-STATE = Topic("state", RobotState)
-TARGET = Topic("target", Target)
+KEPT = 1024  # ~20 s of states at 50 Hz: a recorder stopped that long still gets every one back
+STATE = Topic("state", RobotState, kept=KEPT)
+TARGET = Topic("target", Target, kept=KEPT)
 CAMERA = Topic("camera/frame", CameraFrame)
 CAMERA_ANNOTATED = Topic("camera/annotated", AnnotatedImage)
-CMD_CHUNK = Topic("cmd/chunk", ActionChunk)
-CHUNK_STATUS = Topic("cmd/status", ChunkStatus)
-EVENTS_RETREAT = Topic("events/retreat", RetreatEvent)
-EVENTS_SAFETY = Topic("events/safety", SafetyEvent, urgent=True)
-TELEMETRY_LEARNER = Topic("telemetry/learner", LearnerTelemetry)
-CONTROL = Topic("control", Control, urgent=True, never_drop=True)
+CMD_CHUNK = Topic("cmd/chunk", ActionChunk, kept=KEPT)
+CHUNK_STATUS = Topic("cmd/status", ChunkStatus, kept=KEPT)
+EVENTS_RETREAT = Topic("events/retreat", RetreatEvent, kept=KEPT)
+EVENTS_SAFETY = Topic("events/safety", SafetyEvent, urgent=True, kept=KEPT)
+TELEMETRY_LEARNER = Topic("telemetry/learner", LearnerTelemetry, kept=KEPT)
+CONTROL = Topic("control", Control, urgent=True, never_drop=True, kept=KEPT)
 # Simulation only: the target's ground truth, for the sim camera, tests and benchmarks (the learner's
 # observation only when a test asks for it with ``learner.target_topic``).
-TARGET_TRUTH = Topic("sim/target_truth", Target)
+TARGET_TRUTH = Topic("sim/target_truth", Target, kept=KEPT)
 RESET = Service("reset", ResetRequest, ResetReply)
 
 TOPICS: dict[str, Topic[Any]] = {t.name: t for t in list(globals().values()) if isinstance(t, Topic)}

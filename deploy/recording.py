@@ -21,6 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import zenoh
+import zenoh.ext
 from google.protobuf import descriptor_pb2
 from google.protobuf.descriptor import FileDescriptor
 from mcap.exceptions import McapError
@@ -96,7 +97,17 @@ class Recorder:
         self._done = threading.Event()
         self._flusher = threading.Thread(target=self._flush_every, args=(flush_s,), daemon=True)
         self._flusher.start()
-        self._sub = session.declare_subscriber(f"{NAMESPACE}/{robot}/**", self._on_sample)
+        # Advanced: it notices from the publishers' heartbeats what it missed (a stall of this process, a
+        # link remade) and asks their caches for it (``Topic.kept``), so nothing is lost while it was away.
+        self._sub = zenoh.ext.declare_advanced_subscriber(
+            session,
+            f"{NAMESPACE}/{robot}/**",
+            self._on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=m.KEPT),
+            recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+        )
+        self.lost = 0  # messages it missed and could not get back (gone from the publisher's cache)
+        self._misses = self._sub.sample_miss_listener(self._on_miss)
 
     def _begin(self, path: Path) -> None:
         """Start the file ``path`` (schemas and channels are registered again in each part)."""
@@ -119,6 +130,11 @@ class Recorder:
                     self._begin(part_path(self.path, len(self.parts) + 1))
                 else:
                     self._writer.flush()
+
+    def _on_miss(self, miss: zenoh.ext.Miss) -> None:
+        with self._lock:
+            self.lost += miss.nb
+        log.error("recording: %d messages lost (missed, and no longer in their publisher's cache)", miss.nb)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -177,6 +193,7 @@ class Recorder:
 
     def close(self) -> None:
         try:
+            self._misses.undeclare()
             self._sub.undeclare()
         except Exception as exc:  # the session may already be closed
             log.debug("undeclare: %s", exc)

@@ -129,6 +129,7 @@ class Stack:
         self.monitor_url = ""
         self.foxglove_url = ""  # the monitor's Foxglove live view, when it serves one
         self.recording_path: Path | None = None
+        self.recording_lost: int | None = None  # messages the recorder missed and could not get back
 
     def part_commands(self) -> dict[str, list[str]]:
         """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
@@ -268,6 +269,7 @@ class Stack:
             self.stop_parts()
             if recorder is not None:
                 recorder.close()
+                self.recording_lost = recorder.lost
             bus.close()
         return self.summary(time.monotonic() - t0)
 
@@ -328,6 +330,7 @@ class Stack:
             "safety_events": dict(self.safety_kinds),
             "recording": str(self.recording_path) if self.recording_path else None,
             "recording_parts": [str(p) for p in parts(self.recording_path)] if self.recording_path else None,
+            "recording_lost": self.recording_lost,
             "learner_result": str(result_path),
             "exit_codes": {p: proc.returncode for p, proc in self.procs.items()},
             "restarts": dict(self.restarts),

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import zenoh
+import zenoh.ext
 from pydantic import Field, model_validator
 
 from common.config import Section
@@ -323,12 +324,24 @@ class Bus:
         """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed)."""
         congestion = zenoh.CongestionControl
 
-        def make(session: zenoh.Session) -> zenoh.Publisher:
-            return session.declare_publisher(
+        qos = {
+            "express": express,
+            "priority": zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
+            "congestion_control": congestion.BLOCK if topic.never_drop else congestion.DROP,
+        }
+
+        def make(session: zenoh.Session) -> zenoh.Publisher | zenoh.ext.AdvancedPublisher:
+            if not topic.kept:
+                return session.declare_publisher(self.key(topic), **qos)
+            return zenoh.ext.declare_advanced_publisher(  # a subscriber that missed some asks for them
+                session,
                 self.key(topic),
-                express=express,
-                priority=zenoh.Priority.REAL_TIME if topic.urgent else zenoh.Priority.DEFAULT,
-                congestion_control=congestion.BLOCK if topic.never_drop else congestion.DROP,
+                **qos,
+                cache=zenoh.ext.CacheConfig(topic.kept),
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                    heartbeat=HEARTBEAT_S, sporadic_heartbeat=None
+                ),
+                publisher_detection=True,
             )
 
         with self._renew_lock:
@@ -443,6 +456,9 @@ class Bus:
             self._declared.clear()
             self.session.close()
 
+
+HEARTBEAT_S = 0.5
+"""How often a publisher of a ``kept`` topic tells its newest seq, so a subscriber notices what it missed."""
 
 STALL_LEASES = 0.6
 """A stall this many leases long makes ``Bus.open``'s bus renew its session: peers send a keep-alive every

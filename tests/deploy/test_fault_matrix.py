@@ -46,7 +46,6 @@ class Run:
     cfg: dict
     probe: BusProbe
     got: dict[str, list] = field(default_factory=dict)  # topic name -> [(arrival, message)]
-    recorder_stopped: tuple[float, float] = (0.0, 0.0)  # the supervisor's SIGSTOP (it records)
 
     def pids(self) -> dict[str, int]:
         return {**parts_of(self.path), "supervisor": self.up.pid}
@@ -149,11 +148,9 @@ def test_04_a_stopped_observer_does_not_stop_learning(run: Run, part: str) -> No
     """The monitor only watches and the supervisor only records and restarts: the loop goes on while
     either is stopped. (A stalled subscriber can hold the others' traffic to it until its lease runs out,
     ``zenoh.lease_ms``: at worst the arm holds for the watchdog meanwhile, then goes on without it.) A
-    stopped recorder records nothing: test_09 leaves that window out, and counts it."""
+    stopped recorder gets what it missed back from the publishers' caches: test_09 finds it all."""
     before = run.step()
     t0, t1 = _pause(run.pids()[part], 4.0)
-    if part == "supervisor":
-        run.recorder_stopped = (t0, t1 + 2.0)  # and until its links are remade
     during = [t.global_step for t in run.since(m.TELEMETRY_LEARNER, t0, t1)]
     assert during and max(during) > before, (before, during)
     assert set(parts_of(run.path)) == set(PARTS) and run.up.poll() is None
@@ -218,16 +215,12 @@ def test_09_a_killed_supervisor_leaves_no_part_and_a_recording_with_every_messag
     assert len(files) == 1
     recorded = {(key, data) for key, _, _, data in read(files[0])}
     flushed = t_kill - run.cfg.get("recording", {}).get("flush_s", 1.0) - 0.5
-    stopped_from, stopped_to = run.recorder_stopped
-    missing, while_stopped = {}, 0
+    missing = {}
     with run.probe.lock:
         for topic in KEPT:
             key = run.probe.bus.key(topic)
-            seen = [(at, msg) for at, msg in run.got[topic.name] if at < flushed]
-            gone = [(at, msg) for at, msg in seen if (key, msg.SerializeToString()) not in recorded]
-            stopped = [msg for at, msg in gone if stopped_from <= at <= stopped_to]
-            while_stopped += len(stopped)
-            if len(gone) > len(stopped):
-                missing[topic.name] = (len(gone) - len(stopped), len(seen))
-    print(f"recording: {while_stopped} messages not recorded while the supervisor was stopped")
+            seen = [msg for at, msg in run.got[topic.name] if at < flushed]
+            gone = [msg for msg in seen if (key, msg.SerializeToString()) not in recorded]
+            if gone:
+                missing[topic.name] = (len(gone), len(seen))
     assert not missing, f"seen on the bus but not in the recording (missing, seen): {missing}"

@@ -58,3 +58,4 @@ def test_stack_learns_reach_over_zenoh(tmp_path):
     kinds = {schema.removeprefix("adaptiveh.") for _, schema, _, _ in recs}
     assert {"RobotState", "Target", "ActionChunk", "ChunkStatus", "RetreatEvent", "LearnerTelemetry"} <= kinds
     assert "Rejected" not in kinds  # every part spoke the schema
+    assert s["recording_lost"] == 0  # nothing the recorder missed was gone from the publishers' caches
