@@ -38,7 +38,7 @@ import yaml
 from mcap.reader import make_reader
 
 from deploy import messages as m
-from deploy.recording import REJECTED
+from deploy.recording import REJECTED, parts
 from deploy.stack import PART_COMMANDS, running_parts
 from deploy.transport import Bus, ZenohConfig, open_session, wait_listening
 
@@ -434,28 +434,50 @@ def progress_line(s: dict[str, Any]) -> str:
 
 # -- the recording ------------------------------------------------------------------------------------
 def recording_check(path: Path, robot: str) -> dict[str, Any]:
-    """``seq`` gaps per key in the MCAP, and the recorder's own arrival latency (stamp -> log time).
+    """``seq`` gaps per key in the MCAP (every part of it), and the recorder's own arrival latency
+    (stamp -> log time).
 
-    Streams the file with a topic filter rather than ``deploy.recording.read``, which holds every
-    message (derived Foxglove channels too) in memory at once: an hour is a few hundred MB of it.
+    Streams the files with a topic filter rather than ``deploy.recording.read``, which holds every
+    message (derived Foxglove channels too) in memory at once: an hour is a few hundred MB of it. The
+    seqs are checked in their publishers' order: what the recorder got back after missing it (from the
+    publishers' caches, ``Topic.kept``) is logged when it came, later than its neighbours.
     """
     keys = {m.key(robot, t.name): t for t in WATCHED}
-    seq = {t.name: seq_track(t) for t in WATCHED}
+    got: dict[str, list[tuple[str, int, float]]] = {t.name: [] for t in WATCHED}
     arrival: dict[str, list[float]] = {t.name: [] for t in WATCHED}
     rejected = 0
-    with open(path, "rb") as fh:
-        wanted = [*keys, *(REJECTED + k for k in keys)]  # not the derived Foxglove channels
-        for _, channel, msg in make_reader(fh).iter_messages(topics=wanted, log_time_order=True):
-            topic = keys.get(channel.topic)
-            if topic is None:
-                rejected += 1
-                continue
-            decoded = topic.decode(msg.data)
-            seq[topic.name].feed(stream_of(topic, decoded), decoded.seq, msg.log_time / 1e9)
-            arrival[topic.name].append(msg.log_time / 1e9 - decoded.stamp)
+    files = parts(path)
+    for part in files:
+        with open(part, "rb") as fh:
+            wanted = [*keys, *(REJECTED + k for k in keys)]  # not the derived Foxglove channels
+            for _, channel, msg in make_reader(fh).iter_messages(topics=wanted, log_time_order=True):
+                topic = keys.get(channel.topic)
+                if topic is None:
+                    rejected += 1
+                    continue
+                decoded = topic.decode(msg.data)
+                got[topic.name].append((stream_of(topic, decoded), decoded.seq, msg.log_time / 1e9))
+                arrival[topic.name].append(msg.log_time / 1e9 - decoded.stamp)
+    seq = {t.name: seq_track(t) for t in WATCHED}
+    for name, entries in got.items():
+        track = seq[name]
+        # Each stream in its publisher's order; a publisher restarted (numbering from the start again,
+        # seen in arrival order) begins a new epoch, fed after the one before.
+        top: dict[str, int] = {}
+        epoch: dict[str, int] = {}
+        keyed = []
+        for stream, number, when in entries:
+            if number <= track.first + 10 < top.get(stream, 0):
+                epoch[stream] = epoch.get(stream, 0) + 1
+                top[stream] = number
+            top[stream] = max(top.get(stream, 0), number)
+            keyed.append((stream, epoch.get(stream, 0), number, when))
+        for stream, _, number, when in sorted(keyed, key=lambda e: e[:3]):
+            track.feed(stream, number, when)
     return {
         "path": str(path),
-        "size_mb": path.stat().st_size / 2**20,
+        "parts": len(files),
+        "size_mb": sum(f.stat().st_size for f in files) / 2**20,
         "rejected": rejected,
         "keys": {k: {**v.report(), "arrival": pct(arrival[k])} for k, v in seq.items() if v.received},
     }
