@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import zenoh
 import zenoh.ext
@@ -87,9 +88,9 @@ class Recorder:
         self.parts: list[Path] = []
         self._split_s = split_s
         self._lock = threading.Lock()
+        self._deriver = deriver
         self._begin(self.path)
         self._seq: dict[str, int] = {}  # per key, across parts
-        self._deriver = deriver
         self.derived = 0
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
         self.count = 0
@@ -97,17 +98,24 @@ class Recorder:
         self._done = threading.Event()
         self._flusher = threading.Thread(target=self._flush_every, args=(flush_s,), daemon=True)
         self._flusher.start()
-        # Advanced: it notices from the publishers' heartbeats what it missed (a stall of this process, a
-        # link remade) and asks their caches for it (``Topic.kept``), so nothing is lost while it was away.
-        self._sub = zenoh.ext.declare_advanced_subscriber(
-            session,
-            f"{NAMESPACE}/{robot}/**",
-            self._on_sample,
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=m.KEPT),
-            recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
-        )
+        # The kept topics through advanced subscribers: they notice from the publishers' heartbeats what
+        # they missed (a stall of this process, a link remade) and ask the publishers' caches for it
+        # (``Topic.kept``), so nothing is lost while the recorder was away. Everything else (images,
+        # a stranger's bytes on any key) through a plain one.
+        kept = [t for t in m.TOPICS.values() if t.kept]
+        self._kept_keys = {t.key(robot) for t in kept}
+        self._subs: list[Any] = []
         self.lost = 0  # messages it missed and could not get back (gone from the publisher's cache)
-        self._misses = self._sub.sample_miss_listener(self._on_miss)
+        for topic in kept:
+            sub = zenoh.ext.declare_advanced_subscriber(
+                session,
+                topic.key(robot),
+                self._on_sample,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=topic.kept),
+                recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+            )
+            self._subs += [sub.sample_miss_listener(self._on_miss), sub]
+        self._subs.append(session.declare_subscriber(f"{NAMESPACE}/{robot}/**", self._on_other))
 
     def _begin(self, path: Path) -> None:
         """Start the file ``path`` (schemas and channels are registered again in each part)."""
@@ -118,23 +126,32 @@ class Recorder:
         self._channels: dict[str, int] = {}
         self._started = time.monotonic()
         self.parts.append(path)
+        if self._deriver is not None:
+            self._deriver.robot_sent = False  # each part carries the robot's model for Foxglove
 
     def _flush_every(self, period: float) -> None:
         while not self._done.wait(period):
             with self._lock:
                 if self._closed:
                     continue
-                if time.monotonic() - self._started >= self._split_s:
-                    self._writer.finish()
-                    self._fh.close()
-                    self._begin(part_path(self.path, len(self.parts) + 1))
-                else:
-                    self._writer.flush()
+                try:
+                    if time.monotonic() - self._started >= self._split_s:
+                        self._writer.finish()
+                        self._fh.close()
+                        self._begin(part_path(self.path, len(self.parts) + 1))
+                    else:
+                        self._writer.flush()
+                except OSError:  # a full disk: say so, and try again at the next flush
+                    log.exception("recording %s: could not write", self.parts[-1])
 
     def _on_miss(self, miss: zenoh.ext.Miss) -> None:
         with self._lock:
             self.lost += miss.nb
         log.error("recording: %d messages lost (missed, and no longer in their publisher's cache)", miss.nb)
+
+    def _on_other(self, sample: zenoh.Sample) -> None:
+        if str(sample.key_expr) not in self._kept_keys:  # those come through their advanced subscriber
+            self._on_sample(sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -147,16 +164,19 @@ class Recorder:
                 return
             key, data, msg = self._checked(key, data)
             channel = self._channel(key, m.Rejected if msg is None else type(msg))
-            self._write(key, channel, data, now)
+            # publish time: the sender's stamp (a message got back late keeps when it was sent)
+            stamp = getattr(msg, "stamp", 0.0) if msg is not None else 0.0
+            sent = int(stamp * 1e9) if stamp > 0 else now
+            self._write(key, channel, data, now, sent)
             self.count += 1
             if self._deriver is not None and msg is not None:
                 for derived in self._deriver.feed(m.topic_of_key(key), msg):
                     self._write(derived.topic, self._derived_channel(derived), derived.data, now)
                     self.derived += 1
 
-    def _write(self, key: str, channel: int, data: bytes, now: int) -> None:
+    def _write(self, key: str, channel: int, data: bytes, now: int, sent: int | None = None) -> None:
         self._seq[key] = self._seq.get(key, 0) + 1
-        self._writer.add_message(channel, now, data, now, self._seq[key])
+        self._writer.add_message(channel, now, data, now if sent is None else sent, self._seq[key])
 
     @staticmethod
     def _checked(key: str, data: bytes) -> tuple[str, bytes, m.Message | None]:
@@ -192,11 +212,11 @@ class Recorder:
         return channel
 
     def close(self) -> None:
-        try:
-            self._misses.undeclare()
-            self._sub.undeclare()
-        except Exception as exc:  # the session may already be closed
-            log.debug("undeclare: %s", exc)
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception as exc:  # the session may already be closed
+                log.debug("undeclare: %s", exc)
         with self._lock:
             self._done.set()
             if not self._closed:

@@ -179,16 +179,20 @@ class Publisher(Generic[M]):
         topic: Topic[M],
         first_seq: int = 1,
         seal: Callable[[M], None] | None = None,
+        before_put: Callable[[], object] | None = None,
     ) -> None:
         self._pub = pub
         self.topic = topic
         self._seq = first_seq - 1
         self._seal = seal  # called after stamping, before serializing (e.g. to sign the message)
+        self._before_put = before_put  # the bus's stall check (Bus.check_stall): may renew the session
         self._lock = threading.Lock()
 
     def put(self, msg: M) -> int:
         if not isinstance(msg, self.topic.type):
             raise TypeError(f"{self.topic.name} carries {self.topic.type.__name__}, not {type(msg).__name__}")
+        if self._before_put is not None:
+            self._before_put()  # outside the lock: a renewal takes it to switch this publisher
         with self._lock:
             self._seq += 1
             msg.seq = self._seq
@@ -220,6 +224,9 @@ class Bus:
         self._renew_lock = threading.RLock()  # declarations and renewals, one at a time
         self._closed = threading.Event()
         self._reopen: Callable[[], zenoh.Session] | None = None  # how ``renew`` opens a session like this one
+        self._stall_s: float | None = None  # a stall this long renews the session (``open``); None: never
+        self._looked = (time.monotonic(), time.process_time())  # check_stall's last look: clock and CPU
+        self._stall_lock = threading.Lock()
 
     @classmethod
     def open(cls, cfg: ZenohConfig, robot: str, key: bytes | None = None, identity: str | None = None) -> Bus:
@@ -237,10 +244,8 @@ class Bus:
         bus = cls(session, robot, key)
         bus._reopen = again
         if again is not None:
-            stall_s = STALL_LEASES * cfg.lease_ms / 1000
-            threading.Thread(
-                target=bus._guard, args=(stall_s,), name="zenoh-stall-guard", daemon=True
-            ).start()
+            bus._stall_s = STALL_LEASES * cfg.lease_ms / 1000
+            threading.Thread(target=bus._guard, name="zenoh-stall-guard", daemon=True).start()
         return bus
 
     def declare(self, make: Callable[[zenoh.Session], T]) -> T:
@@ -251,29 +256,51 @@ class Bus:
             self._declared.append(_Declared(make, obj))
             return obj
 
-    def _guard(self, stall_s: float) -> None:
-        """Watch this process's own clocks: a tick that took ``stall_s`` longer than asked while the
-        process used almost no CPU means it was stopped or starved (Zenoh's threads with it). A thread
-        holding the GIL (a long pickle) delays the tick too, but burns CPU, and Zenoh's own threads,
-        outside the GIL, kept the links alive: no renewal then."""
-        tick = 0.1
-        last, cpu = time.monotonic(), time.process_time()
-        while not self._closed.wait(tick):
+    def _guard(self) -> None:
+        """Look at this process's clocks every ``GUARD_TICK_S``, so a stall is seen within a tick."""
+        while not self._closed.wait(GUARD_TICK_S):
+            try:
+                self.check_stall()
+            except Exception:  # the guard must outlive a failed renewal
+                log.exception("the Zenoh stall guard failed")
+
+    def check_stall(self) -> bool:
+        """Renew the session if this process was stalled since the last look; True if it did.
+
+        A look that comes ``stall_s`` late while the process used almost no CPU means it was stopped or
+        starved (Zenoh's threads with it). A thread holding the GIL (a long pickle) delays the look too,
+        but burns CPU, and Zenoh's own threads, outside the GIL, kept the links alive: no renewal then.
+        Publishers look before each put (``Publisher.before_put``), so nothing leaves a stalled process
+        on links its peers may have half-closed, even before the guard's thread runs again."""
+        if self._stall_s is None:
+            return False
+        now = time.monotonic()
+        if now - self._looked[0] - GUARD_TICK_S <= self._stall_s:  # the common case: one clock read
+            if now - self._looked[0] >= GUARD_TICK_S:
+                self._looked = (now, time.process_time())
+            return False
+        with self._stall_lock:
+            last, cpu = self._looked
             now, now_cpu = time.monotonic(), time.process_time()
-            stalled, used = now - last - tick, now_cpu - cpu
-            last, cpu = now, now_cpu
-            if stalled > stall_s and used < 0.25 * (stalled + tick):
+            stalled = now - last - GUARD_TICK_S
+            if stalled <= self._stall_s:  # another thread looked (or renewed) meanwhile
+                return False
+            renewed = False
+            if now_cpu - cpu < STALL_CPU_SHARE * (now - last):
                 log.warning(
                     "this process was stalled %.2f s (Zenoh lease %.2f s): reopening its Zenoh session",
                     stalled,
-                    stall_s / STALL_LEASES,
+                    self._stall_s / STALL_LEASES,
                 )
-                self.renew()
+                renewed = self.renew()
+            self._looked = (time.monotonic(), time.process_time())  # the renewal itself is no stall
+            return renewed
 
     def renew(self) -> bool:
         """Swap the session for a fresh one like it, remaking every declaration on it; False (the old
-        session kept) if the new one cannot be opened. Publishers wait meanwhile; no subscriber is on
-        both. Only for a bus from ``open`` that holds no fixed listener (ValueError otherwise)."""
+        session kept, its declarations restored) if the new one cannot be opened or declared on. No
+        subscriber is on both; publishers switch one at a time and never wait on Zenoh. Only for a bus
+        from ``open`` that holds no fixed listener (ValueError otherwise)."""
         if self._reopen is None:
             raise ValueError(
                 "this bus cannot renew its session: it holds a fixed listener or came from outside"
@@ -287,21 +314,28 @@ class Bus:
             if self._closed.is_set():
                 fresh.close()
                 return False
-            publishers = [d.publisher for d in self._declared if d.publisher is not None]
-            for pub in publishers:
-                pub._lock.acquire()
+            for d in reversed(self._declared):
+                if d.publisher is None:
+                    _undeclare(d.obj)
+            made: list[Any] = []
             try:
-                for d in reversed(self._declared):
-                    if d.publisher is None:
-                        _undeclare(d.obj)
-                old, self.session = self.session, fresh
                 for d in self._declared:
-                    d.obj = d.make(fresh)
-                    if d.publisher is not None:
-                        d.publisher._pub = d.obj
-            finally:
-                for pub in publishers:
-                    pub._lock.release()
+                    made.append(d.make(fresh))
+            except Exception as exc:
+                log.error("could not declare on the new Zenoh session (%s); keeping the old one", exc)
+                for obj in made:
+                    _undeclare(obj)
+                fresh.close()
+                for d in self._declared:
+                    if d.publisher is None:
+                        d.obj = d.make(self.session)
+                return False
+            old, self.session = self.session, fresh
+            for d, obj in zip(self._declared, made, strict=True):
+                d.obj = obj
+                if d.publisher is not None:
+                    with d.publisher._lock:
+                        d.publisher._pub = obj
             old.close()
             self.renewals += 1
         return True
@@ -346,7 +380,8 @@ class Bus:
 
         with self._renew_lock:
             pub = make(self.session)
-            wrapper = Publisher(pub, topic, first_seq, self._sealer(topic.type, seal))
+            check = self.check_stall if self._stall_s is not None else None
+            wrapper = Publisher(pub, topic, first_seq, self._sealer(topic.type, seal), check)
             self._declared.append(_Declared(make, pub, wrapper))
         return wrapper
 
@@ -463,6 +498,11 @@ HEARTBEAT_S = 0.5
 STALL_LEASES = 0.6
 """A stall this many leases long makes ``Bus.open``'s bus renew its session: peers send a keep-alive every
 quarter lease, so the earliest of them expires a stopped process's link after 3/4 of a lease."""
+# At most this share of a core used meanwhile: stopped (SIGSTOP, a paused VM), not merely starved. Tried
+# 0.25: vision at nice 5 on 2 cores at load 14 got ~5 % and renewed four times in 5 s, each renewal more
+# links and memory for every peer; a starved process's links are Zenoh's to keep or remake.
+STALL_CPU_SHARE = 0.02
+GUARD_TICK_S = 0.1
 
 
 @dataclass

@@ -9,10 +9,14 @@ log is read back once, for the run's result.
 from __future__ import annotations
 
 import json
+import logging
+import os
 from dataclasses import asdict
 from pathlib import Path
 
 from learner.protocol import RunLog, SegmentRecord
+
+logger = logging.getLogger(__name__)
 
 
 class SegmentArchive:
@@ -24,8 +28,17 @@ class SegmentArchive:
         self.path = Path(path)
         self.keep = keep
         kept = [s for s in self._read() if s.index < log.segment_count]
+        if [s.index for s in kept] != list(range(len(kept))) or len(kept) < log.segments_before:
+            logger.error(
+                "%s does not hold segments 0..%d in order (%d lines): the run's result will lack some",
+                self.path,
+                log.segments_before - 1,
+                len(kept),
+            )
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.path.write_text("".join(_line(s) for s in kept))
+        tmp = self.path.with_suffix(".tmp")  # a kill while rewriting must not lose the archive
+        tmp.write_text("".join(_line(s) for s in kept))
+        os.replace(tmp, self.path)
         self.written = kept[-1].index + 1 if kept else 0  # the next index the file lacks
         self.add(log)
 
@@ -50,8 +63,15 @@ class SegmentArchive:
     def _read(self) -> list[SegmentRecord]:
         if not self.path.exists():
             return []
+        out = []
         with self.path.open() as fh:
-            return [SegmentRecord(**json.loads(line)) for line in fh if line.strip()]
+            for n, line in enumerate(fh, 1):
+                try:
+                    out.append(SegmentRecord(**json.loads(line)))
+                except (json.JSONDecodeError, TypeError):  # a line cut short by a kill: the rest is lost
+                    logger.warning("%s: line %d is not a whole segment; reading up to it", self.path, n)
+                    break
+        return out
 
 
 def _line(s: SegmentRecord) -> str:

@@ -76,8 +76,9 @@ def test_recorded_scene_shows_the_plan_and_the_cut_rest(tmp_path: Path, endpoint
         (m.STATE, state(4, [0.41, 0.0, 0.3])),
     ]
     try:
-        for topic, msg in sent:
+        for topic, msg in sent:  # paced as the parts send them: the recorder's subscribers are per key
             session.put(topic.key("fx"), msg.SerializeToString())
+            time.sleep(0.02)
         deadline = time.monotonic() + 5
         while recorder.count < len(sent) and time.monotonic() < deadline:
             time.sleep(0.02)

@@ -63,3 +63,18 @@ def test_adaptiveh_numbers_segments_on_past_the_trimmed_ones(tmp_path):
     assert agent.log.segments_before > 0 and len(agent.log.segments) < 40
     assert [s.index for s in full.segments] == list(range(agent.log.segment_count))
     assert sum(s.H for s in full.segments) <= 600
+
+
+def test_a_line_cut_short_by_a_kill_is_dropped_and_the_run_goes_on(tmp_path):
+    path = tmp_path / "segments.jsonl"
+    log = RunLog()
+    archive = SegmentArchive(path, log, keep=50)
+    for _ in range(10):
+        _close(log)
+        archive.add(log)
+    path.write_text(path.read_text() + '{"index": 10, "global_st')  # the kill, mid-line
+    restored = RunLog.from_dict(log.to_dict())
+    archive = SegmentArchive(path, restored, keep=50)
+    _close(restored)
+    assert [s.index for s in archive.full(restored).segments] == list(range(11))
+    assert not path.with_suffix(".tmp").exists()
