@@ -3,8 +3,6 @@ and a resume from a checkpoint drops what the resume undid."""
 
 from __future__ import annotations
 
-import copy
-
 import gymnasium as gym
 
 import sim  # noqa: F401  (registers the environments)
@@ -35,16 +33,25 @@ def test_memory_keeps_the_newest_and_the_file_every_segment(tmp_path):
     assert full.segments[500].statistic == [0.1, 0.2, 0.3] and full.global_step == 3000
 
 
-def test_a_resume_drops_the_segments_it_undid(tmp_path):
-    path = tmp_path / "segments.jsonl"
+def _archived_run(path, segments: int) -> RunLog:
+    """A run of ``segments`` segments, each archived as it closes (as the learner node does)."""
     log = RunLog()
     archive = SegmentArchive(path, log, keep=50)
-    for i in range(300):
+    for _ in range(segments):
         _close(log)
         archive.add(log)
-        if i == 199:
-            checkpoint = copy.deepcopy(RunLog.from_dict(log.to_dict()))  # what the checkpoint holds
-    restored = checkpoint  # the learner died after segment 299 and restarts from the checkpoint
+    return log
+
+
+def test_a_resume_drops_the_segments_it_undid(tmp_path):
+    path = tmp_path / "segments.jsonl"
+    log = _archived_run(path, 200)
+    restored = RunLog.from_dict(log.to_dict())  # what the checkpoint holds
+    went_on = SegmentArchive(path, log, keep=50)  # the learner went on to segment 299, then died
+    for _ in range(100):
+        _close(log)
+        went_on.add(log)
+    assert len(went_on.full(log).segments) == 300  # on file before the restart from the checkpoint
     archive = SegmentArchive(path, restored, keep=50)
     for _ in range(20):
         _close(restored, "h_max")
@@ -67,11 +74,7 @@ def test_adaptiveh_numbers_segments_on_past_the_trimmed_ones(tmp_path):
 
 def test_a_line_cut_short_by_a_kill_is_dropped_and_the_run_goes_on(tmp_path):
     path = tmp_path / "segments.jsonl"
-    log = RunLog()
-    archive = SegmentArchive(path, log, keep=50)
-    for _ in range(10):
-        _close(log)
-        archive.add(log)
+    log = _archived_run(path, 10)
     path.write_text(path.read_text() + '{"index": 10, "global_st')  # the kill, mid-line
     restored = RunLog.from_dict(log.to_dict())
     archive = SegmentArchive(path, restored, keep=50)
