@@ -150,12 +150,16 @@ class SeqTrack:
                 self.examples.append({"t": when, "stream": stream[:16], "after": last, "got": seq})
             return seq - last - 1
         elif seq <= last:
-            if seq <= self.first + 10 < last:
+            if self.restarted(seq, last):
                 self.publisher_restarts += 1
                 self.last[stream] = seq
             else:
                 self.out_of_order += 1
         return 0
+
+    def restarted(self, seq: int, last: int) -> bool:
+        """``seq`` far below the stream's ``last``: its publisher started numbering again."""
+        return seq <= self.first + 10 < last
 
     def report(self) -> dict[str, Any]:
         return {
@@ -467,7 +471,7 @@ def recording_check(path: Path, robot: str) -> dict[str, Any]:
         epoch: dict[str, int] = {}
         keyed = []
         for stream, number, when in entries:
-            if number <= track.first + 10 < top.get(stream, 0):
+            if track.restarted(number, top.get(stream, 0)):
                 epoch[stream] = epoch.get(stream, 0) + 1
                 top[stream] = number
             top[stream] = max(top.get(stream, 0), number)

@@ -148,7 +148,7 @@ class LearnerNode(Node):
 
     def _after_step(self) -> None:
         lg = self.agent.log
-        for rec in lg.segments[len(lg.segments) - (lg.segment_count - self._segments_seen) :]:
+        for rec in lg.segments_since(self._segments_seen):
             self._pub_retreat(
                 m.RetreatEvent(
                     segment=rec.index,

@@ -34,6 +34,7 @@ from mcap.writer import Writer
 
 from deploy import messages as m
 from deploy.foxglove.derive import Derived, Deriver, is_derived
+from deploy.transport import undeclare_quietly
 
 log = logging.getLogger(__name__)
 NAMESPACE = m.NAMESPACE
@@ -213,10 +214,7 @@ class Recorder:
 
     def close(self) -> None:
         for sub in self._subs:
-            try:
-                sub.undeclare()
-            except Exception as exc:  # the session may already be closed
-                log.debug("undeclare: %s", exc)
+            undeclare_quietly(sub)
         with self._lock:
             self._done.set()
             if not self._closed:

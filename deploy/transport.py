@@ -153,17 +153,20 @@ def _open(cfg: ZenohConfig, identity: str | None) -> tuple[zenoh.Session, Callab
     holds a fixed listener, such as the hub, that the second would need)."""
     me = security.process_identity() if identity is None else identity
     if cfg.connect or cfg.listen:
-        again = lambda: zenoh.open(_config(cfg, list(cfg.connect), list(cfg.listen), me))  # noqa: E731
-        return again(), None if cfg.listen else again
-    if cfg.mode == "client":
-        again = lambda: zenoh.open(_config(cfg, [cfg.hub], [], me))  # noqa: E731
-        return again(), again
-    try:
-        return zenoh.open(_config(cfg, [], [cfg.hub], me)), None
-    except zenoh.ZError:
-        log.info("zenoh hub %s already taken; joining through it", cfg.hub)
-        again = lambda: zenoh.open(_config(cfg, [cfg.hub], [own_listener(cfg.hub)], me))  # noqa: E731
-        return again(), again
+        connect, listen = list(cfg.connect), list(cfg.listen)
+    elif cfg.mode == "client":
+        connect, listen = [cfg.hub], []
+    else:
+        try:
+            return zenoh.open(_config(cfg, [], [cfg.hub], me)), None
+        except zenoh.ZError:
+            log.info("zenoh hub %s already taken; joining through it", cfg.hub)
+            connect, listen = [cfg.hub], [own_listener(cfg.hub)]
+
+    def again() -> zenoh.Session:
+        return zenoh.open(_config(cfg, connect, listen, me))
+
+    return again(), None if cfg.listen else again
 
 
 class Publisher(Generic[M]):
@@ -316,7 +319,7 @@ class Bus:
                 return False
             for d in reversed(self._declared):
                 if d.publisher is None:
-                    _undeclare(d.obj)
+                    undeclare_quietly(d.obj)
             made: list[Any] = []
             try:
                 for d in self._declared:
@@ -324,7 +327,7 @@ class Bus:
             except Exception as exc:
                 log.error("could not declare on the new Zenoh session (%s); keeping the old one", exc)
                 for obj in made:
-                    _undeclare(obj)
+                    undeclare_quietly(obj)
                 fresh.close()
                 for d in self._declared:
                     if d.publisher is None:
@@ -487,7 +490,7 @@ class Bus:
         with self._renew_lock:
             self._closed.set()
             for d in reversed(self._declared):
-                _undeclare(d.obj)
+                undeclare_quietly(d.obj)
             self._declared.clear()
             self.session.close()
 
@@ -512,7 +515,8 @@ class _Declared:
     publisher: Publisher[Any] | None = None  # the wrapper that puts through ``obj``
 
 
-def _undeclare(obj: Any) -> None:
+def undeclare_quietly(obj: Any) -> None:
+    """Undeclare a Zenoh declaration that may already be gone with its session."""
     try:
         obj.undeclare()
     except Exception as exc:  # already gone with the session

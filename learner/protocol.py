@@ -54,6 +54,11 @@ class RunLog:
         """Every segment of the run, in memory or not: the next segment's index."""
         return self.segments_before + len(self.segments)
 
+    def segments_since(self, count: int) -> list[SegmentRecord]:
+        """The segments closed after the first ``count`` of the run (those still in memory)."""
+        newer = self.segment_count - count
+        return self.segments[-newer:] if newer > 0 else []
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "global_step": self.global_step,

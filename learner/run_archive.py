@@ -44,8 +44,7 @@ class SegmentArchive:
 
     def add(self, log: RunLog) -> None:
         """Append ``log``'s segments not yet on file, then trim memory to the newest ``keep``."""
-        unwritten = log.segment_count - self.written
-        new = log.segments[-unwritten:] if unwritten > 0 else []  # the log's tail, in index order
+        new = log.segments_since(self.written)
         if new:
             with self.path.open("a") as fh:
                 fh.write("".join(_line(s) for s in new))
