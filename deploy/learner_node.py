@@ -18,6 +18,7 @@ import json
 import logging
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,7 @@ from deploy.signing import Fresh, authentic
 from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
-from learner.run_archive import SegmentArchive
+from learner.run_archive import RunArchive
 from learner.run_summary import summarize
 
 log = logging.getLogger(__name__)
@@ -84,13 +85,15 @@ class LearnerNode(Node):
         self._pub_retreat = self.bus.publisher(m.EVENTS_RETREAT)
         self._pub_tel = self.bus.publisher(m.TELEMETRY_LEARNER)
         self._paused = threading.Event()
-        self._episodes_seen = len(self.agent.log.episodes)
+        self._episodes_seen = self.agent.log.episode_count
         self._segments_seen = self.agent.log.segment_count
-        self.archive = SegmentArchive(self.ckpt.parent / "segments.jsonl", self.agent.log)
+        self.archive = RunArchive(self.ckpt.parent, self.agent.log)
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
         self.retreat_dropped_moving = 0  # plan mode: of the retreat-dropped actions, the non-zero ones
-        self._retreat_chunks: set[int] = set()
+        # The chunks that opened a segment after a retreat; the status naming one as preemptor comes within
+        # a few chunks, so the newest few are enough (a set of every one grew for as long as the run).
+        self._retreat_chunks: deque[int] = deque(maxlen=64)
         self.env.on_status = self._on_status
         self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
@@ -138,7 +141,7 @@ class LearnerNode(Node):
         self._pub_tel(
             m.LearnerTelemetry(
                 global_step=self.agent.log.global_step,
-                episode=len(eps),
+                episode=self.agent.log.episode_count,
                 episode_return=float(last.ret) if last else 0.0,
                 success=bool(last.success) if last and last.success is not None else False,
                 paused=self._paused.is_set(),
@@ -162,12 +165,12 @@ class LearnerNode(Node):
             self.env.segment = rec.index + 1
             self.env.next_plan_reason = rec.reason  # plan mode: the next plan is this segment end's
             if rec.reason == "retreat" and self.cfg.execution == "closed_loop":
-                self._retreat_chunks.add(self.env.chunk_seq + 1)  # the next chunk opens the new segment
-        if lg.segment_count > self._segments_seen:
-            self._segments_seen = lg.segment_count
+                self._retreat_chunks.append(self.env.chunk_seq + 1)  # the next chunk opens the new segment
+        new_episode = lg.episode_count > self._episodes_seen
+        if lg.segment_count > self._segments_seen or new_episode:
+            self._segments_seen, self._episodes_seen = lg.segment_count, lg.episode_count
             self.archive.add(lg)  # on file; memory keeps the newest
-        if len(lg.episodes) > self._episodes_seen:
-            self._episodes_seen = len(lg.episodes)
+        if new_episode:
             self._telemetry()
         elif lg.global_step % TELEMETRY_EVERY == 0:
             self._telemetry()  # the operator sees the step count move between episodes

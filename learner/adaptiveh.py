@@ -345,7 +345,7 @@ class AdaptiveH:
         success = scalars.get("is_success", scalars.get("success"))
         self.log.episodes.append(
             EpisodeRecord(
-                episode=len(self.log.episodes),
+                episode=self.log.episode_count,
                 global_step=self.log.global_step,
                 ret=self._ep_return,
                 length=self._ep_len,

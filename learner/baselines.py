@@ -114,7 +114,7 @@ class _RecordCallback(BaseCallback):
             info = dict(self.locals["infos"][0])
             agent.log.episodes.append(
                 EpisodeRecord(
-                    episode=len(agent.log.episodes),
+                    episode=agent.log.episode_count,
                     global_step=step,
                     ret=agent._ep_return,
                     length=agent._ep_length,

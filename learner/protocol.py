@@ -46,13 +46,20 @@ class RunLog:
     episodes: list[EpisodeRecord] = field(default_factory=list)
     segments: list[SegmentRecord] = field(default_factory=list)
     global_step: int = 0
-    # Segments moved out of memory before ``segments[0]`` (learner.run_archive, for runs of days).
+    # Records moved out of memory before ``segments[0]`` / ``episodes[0]`` (learner.run_archive, for
+    # runs of days).
     segments_before: int = 0
+    episodes_before: int = 0
 
     @property
     def segment_count(self) -> int:
         """Every segment of the run, in memory or not: the next segment's index."""
         return self.segments_before + len(self.segments)
+
+    @property
+    def episode_count(self) -> int:
+        """Every episode of the run, in memory or not: the next episode's number."""
+        return self.episodes_before + len(self.episodes)
 
     def segments_since(self, count: int) -> list[SegmentRecord]:
         """The segments closed after the first ``count`` of the run (those still in memory)."""
@@ -65,6 +72,7 @@ class RunLog:
             "episodes": [asdict(e) for e in self.episodes],
             "segments": [asdict(s) for s in self.segments],
             "segments_before": self.segments_before,
+            "episodes_before": self.episodes_before,
         }
 
     @classmethod
@@ -74,6 +82,7 @@ class RunLog:
             segments=[SegmentRecord(**s) for s in data.get("segments", [])],
             global_step=int(data.get("global_step", 0)),
             segments_before=int(data.get("segments_before", 0)),
+            episodes_before=int(data.get("episodes_before", 0)),
         )
 
 

@@ -1,9 +1,11 @@
-"""A run's segment records on disk, so a learner that runs for days keeps only the newest in memory.
+"""A run's segment and episode records on disk, so a learner that runs for days keeps only the newest
+in memory.
 
-Each segment carries its retreat-statistic trace (one float per step): kept in memory, the deployed
-learner grew by ~5 MB an hour (bench/soak.py) and its checkpoint with it. The archive appends each
-segment to a JSON-lines file as it closes and trims the in-memory log to the newest ``keep``; the whole
-log is read back once, for the run's result.
+Each segment carries its retreat-statistic trace (one float per step) and each episode its info: kept in
+memory, the deployed learner grew by ~5 MB an hour (bench/soak.py) and its checkpoint with it. The
+archive appends each record to a JSON-lines file as it is made (``segments.jsonl``, ``episodes.jsonl``)
+and trims the in-memory log to the newest ``keep`` of each kind; the whole log is read back once, for
+the run's result.
 """
 
 from __future__ import annotations
@@ -11,67 +13,111 @@ from __future__ import annotations
 import json
 import logging
 import os
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
-from learner.protocol import RunLog, SegmentRecord
+from learner.protocol import EpisodeRecord, RunLog, SegmentRecord
 
 logger = logging.getLogger(__name__)
 
 
-class SegmentArchive:
-    """``segments.jsonl`` beside a checkpoint: every segment of the run, in order of index."""
+@dataclass(frozen=True)
+class RecordKind:
+    """One list of a ``RunLog``: its name (also ``<name>_before`` and the file's stem), its record type,
+    and the field that numbers a record from 0."""
 
-    def __init__(self, path: str | Path, log: RunLog, keep: int = 500) -> None:
-        """Resume the archive for ``log`` (from its checkpoint, or new): segments the file holds beyond
-        the log's count were undone by the resume and are dropped."""
-        self.path = Path(path)
-        self.keep = keep
-        kept = [s for s in self._read() if s.index < log.segment_count]
-        if [s.index for s in kept] != list(range(len(kept))) or len(kept) < log.segments_before:
+    name: str
+    record: type
+    number: str
+
+
+KINDS = (RecordKind("segments", SegmentRecord, "index"), RecordKind("episodes", EpisodeRecord, "episode"))
+
+
+class RecordFile:
+    """``<name>.jsonl``: every record of one kind, in order of number; memory keeps the newest ``keep``."""
+
+    def __init__(self, path: Path, kind: RecordKind, log: RunLog, keep: int) -> None:
+        """Resume the file for ``log`` (from its checkpoint, or new): records the file holds beyond the
+        log's count were undone by the resume and are dropped."""
+        self.path, self.kind, self.keep = path, kind, keep
+        count, before = self._count(log), self._before(log)
+        kept = [r for r in self.read() if self._number(r) < count]
+        if [self._number(r) for r in kept] != list(range(len(kept))) or len(kept) < before:
             logger.error(
-                "%s does not hold segments 0..%d in order (%d lines): the run's result will lack some",
-                self.path,
-                log.segments_before - 1,
+                "%s does not hold %s 0..%d in order (%d lines): the run's result will lack some",
+                path,
+                kind.name,
+                before - 1,
                 len(kept),
             )
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")  # a kill while rewriting must not lose the archive
-        tmp.write_text("".join(_line(s) for s in kept))
-        os.replace(tmp, self.path)
-        self.written = kept[-1].index + 1 if kept else 0  # the next index the file lacks
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")  # a kill while rewriting must not lose the archive
+        tmp.write_text("".join(_line(r) for r in kept))
+        os.replace(tmp, path)
+        self.written = self._number(kept[-1]) + 1 if kept else 0  # the next number the file lacks
         self.add(log)
 
     def add(self, log: RunLog) -> None:
-        """Append ``log``'s segments not yet on file, then trim memory to the newest ``keep``."""
-        new = log.segments_since(self.written)
+        """Append ``log``'s records not yet on file, then trim memory to the newest ``keep``."""
+        items: list[Any] = getattr(log, self.kind.name)
+        newer = self._count(log) - self.written
+        new = items[-newer:] if newer > 0 else []
         if new:
             with self.path.open("a") as fh:
-                fh.write("".join(_line(s) for s in new))
-            self.written = new[-1].index + 1
-        extra = len(log.segments) - self.keep
+                fh.write("".join(_line(r) for r in new))
+            self.written = self._number(new[-1]) + 1
+        extra = len(items) - self.keep
         if extra >= self.keep:  # trim in batches: a del at the front moves the whole list
-            del log.segments[:extra]
-            log.segments_before += extra
+            del items[:extra]
+            setattr(log, f"{self.kind.name}_before", self._before(log) + extra)
 
-    def full(self, log: RunLog) -> RunLog:
-        """``log`` with every segment of the run (the file's, then any in memory not yet added)."""
-        self.add(log)
-        return RunLog(episodes=log.episodes, segments=self._read(), global_step=log.global_step)
-
-    def _read(self) -> list[SegmentRecord]:
+    def read(self) -> list[Any]:
+        """Every whole record on file."""
         if not self.path.exists():
             return []
         out = []
         with self.path.open() as fh:
             for n, line in enumerate(fh, 1):
                 try:
-                    out.append(SegmentRecord(**json.loads(line)))
+                    out.append(self.kind.record(**json.loads(line)))
                 except (json.JSONDecodeError, TypeError):  # a line cut short by a kill: the rest is lost
-                    logger.warning("%s: line %d is not a whole segment; reading up to it", self.path, n)
+                    logger.warning("%s: line %d is not a whole record; reading up to it", self.path, n)
                     break
         return out
 
+    def _number(self, record: Any) -> int:
+        return int(getattr(record, self.kind.number))
 
-def _line(s: SegmentRecord) -> str:
-    return json.dumps(asdict(s)) + "\n"
+    def _before(self, log: RunLog) -> int:
+        return int(getattr(log, f"{self.kind.name}_before"))
+
+    def _count(self, log: RunLog) -> int:
+        return self._before(log) + len(getattr(log, self.kind.name))
+
+
+class RunArchive:
+    """``segments.jsonl`` and ``episodes.jsonl`` in a checkpoint's directory."""
+
+    def __init__(self, directory: str | Path, log: RunLog, keep: int = 500) -> None:
+        self.keep = keep
+        self.files = {k.name: RecordFile(Path(directory) / f"{k.name}.jsonl", k, log, keep) for k in KINDS}
+
+    def add(self, log: RunLog) -> None:
+        """Put ``log``'s new records on file and trim its lists in memory."""
+        for f in self.files.values():
+            f.add(log)
+
+    def full(self, log: RunLog) -> RunLog:
+        """``log`` with every record of the run (the files', after adding any not yet there)."""
+        self.add(log)
+        return RunLog(
+            episodes=self.files["episodes"].read(),
+            segments=self.files["segments"].read(),
+            global_step=log.global_step,
+        )
+
+
+def _line(record: Any) -> str:
+    return json.dumps(asdict(record)) + "\n"
