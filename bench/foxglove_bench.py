@@ -5,7 +5,7 @@
    derived Foxglove channels, scaled to one minute of the recording's own span.
 2. Replays that recording (``adaptiveh replay --no-monitor --speed S``) onto a hub this process owns, three
    times: with only a Zenoh subscriber here (the baseline), with the Foxglove live server
-   (``deploy.foxglove.live``) and no viewer, and with the server and a viewer subscribed to every channel
+   (``monitor.foxglove.live``) and no viewer, and with the server and a viewer subscribed to every channel
    (a separate process speaking Foxglove's WebSocket protocol, so its CPU is not counted). CPU is this
    process's user + system time (every thread, the SDK's included) per minute of recorded data.
 
@@ -30,10 +30,10 @@ from typing import Any
 import yaml
 from mcap.reader import make_reader
 
+from bus.transport import ZenohConfig, open_session
 from deploy.config import load_stack_config
-from deploy.foxglove.derive import SceneSetup, is_derived
-from deploy.foxglove.live import FoxgloveLive
-from deploy.transport import ZenohConfig, open_session
+from monitor.foxglove.derive import SceneSetup, is_derived
+from monitor.foxglove.live import FoxgloveLive
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' free-port helper (see stack_bench.py)
@@ -137,7 +137,7 @@ def replay_cpu(config: Path, mcap: Path, speed: float, mode: str) -> dict[str, A
     live = viewer = None
     if mode != "baseline":
         live = FoxgloveLive(
-            session, robot, SceneSetup.from_stack(stack), port=0, exclude=stack.recording.exclude
+            session, robot, SceneSetup.from_vision(stack.vision), port=0, exclude=stack.recording.exclude
         )
     if mode == "viewer":
         viewer = subprocess.Popen([sys.executable, "-c", VIEWER, live.url], stdout=subprocess.PIPE, text=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from robot_io.backends.franky_sim import FrankySimServer
 from robot_io.config import FrankaConfig, RobotConfig
-from robot_io.controller import RobotController
+from tasks.sim_world import robot_controller
 
 HOST = "127.0.0.61"
 PERIOD = 0.05
@@ -64,7 +64,7 @@ def run_mode(stream: str) -> dict:
     cfg = RobotConfig(
         backend="franka", model="fr3", franka=FrankaConfig(ip=HOST, stream=stream, home_dynamics=0.5)
     )
-    c = RobotController(cfg)
+    c = robot_controller(cfg)
     c.reset()
     robot, b = c.backend.robot, c.backend
     # command -> motion, from rest
@@ -158,7 +158,7 @@ def run_mode(stream: str) -> dict:
 
 def recovery(server: FrankySimServer) -> dict:
     cfg = RobotConfig(backend="franka", model="fr3", franka=FrankaConfig(ip=HOST))
-    c = RobotController(cfg)
+    c = robot_controller(cfg)
     server.kill()
     t0 = time.monotonic()
     while c.backend.fault() is None:

@@ -139,7 +139,15 @@ class Counts:
         self.lock = threading.Lock()
         self.chunks = self.played = self.ticks = self.resets = 0
         self.events: list[tuple[float, str, str]] = []
+        self.holds: list[float] = []  # when the backend began braking (a hold while streaming)
         push, tick, react, reset = c.push_chunk, c.tick, c.react, c.reset
+        backend, hold = c.backend, c.backend.hold
+
+        def on_hold() -> None:
+            if not backend._stopping:
+                with self.lock:
+                    self.holds.append(time.monotonic())
+            hold()
 
         def on_push(*args: Any, **kw: Any) -> Any:
             with self.lock:
@@ -162,6 +170,12 @@ class Counts:
         c.tick = lambda now: on_result(tick(now), True)
         c.react = lambda now: on_result(react(now), False)
         c.reset = on_reset
+        backend.hold = on_hold
+
+    def since_hold(self, t: float) -> float | None:
+        """Seconds from the newest brake that began before ``t`` (None: none did)."""
+        before = [h for h in self.holds if h <= t]
+        return round(t - before[-1], 3) if before else None
 
 
 def stack_config(args: argparse.Namespace, tmp: Path) -> Path:
@@ -340,7 +354,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "wall_clock_s": round(wall, 1),
         "reflexes": len(reflexes),
         "reflex_reasons": [{"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes],
-        "faults_seen_by_robot_io": [{"t_s": round(t, 1), "detail": d.splitlines()[0]} for t, _, d in faults],
+        "faults_seen_by_robot_io": [
+            {"t_s": round(t, 1), "s_after_brake": counts.since_hold(t + t0), "detail": d.splitlines()[0]}
+            for t, _, d in faults
+        ],
+        "brakes": len(counts.holds),
         "operator_releases": releases,
         "control_command_success_rate_franka_sim": {
             "commanded_cycles": cycles,

@@ -70,8 +70,10 @@ def speed(algo: str, budget: int, timed: int, decisions: int, fill_cap: int = 60
         "filled_after_steps": steps,
         "dictionary_sizes": {"policy": full[0], "critic": full[1]},
         "steps_per_s": round(steps_per_s, 1),
-        "decision_latency_ms": {"p50": round(float(np.percentile(lat_ms, 50)), 4),
-                                "p99": round(float(np.percentile(lat_ms, 99)), 4)},
+        "decision_latency_ms": {
+            "p50": round(float(np.percentile(lat_ms, 50)), 4),
+            "p99": round(float(np.percentile(lat_ms, 99)), 4),
+        },
     }
 
 
@@ -86,8 +88,15 @@ def memory(total: int, budget: int = 300) -> list[dict]:
     for mark in marks:
         agent.learn(mark - done)
         done = mark
-        out.append({"steps": mark, "rss_mb": round(rss_mb(), 1), "policy_centres": len(agent.policy.f),
-                    "critic_centres": len(agent.critic.dictionary), "segments": len(agent.log.segments)})
+        out.append(
+            {
+                "steps": mark,
+                "rss_mb": round(rss_mb(), 1),
+                "policy_centres": len(agent.policy.f),
+                "critic_centres": len(agent.critic.dictionary),
+                "segments": len(agent.log.segments),
+            }
+        )
         print(out[-1], flush=True)
     return out
 

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from deploy import messages as m
-from deploy.learner_session import LearnerSession
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.learner_session import LearnerSession
+from bus.transport import Bus, ZenohConfig, open_session
 from robot_io.config import RobotConfig
 from robot_io.ik import DifferentialIK
 

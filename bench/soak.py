@@ -37,10 +37,10 @@ import numpy as np
 import yaml
 from mcap.reader import make_reader
 
-from deploy import messages as m
-from deploy.recording import REJECTED, parts
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session, wait_listening
 from deploy.stack import PART_COMMANDS, running_parts
-from deploy.transport import Bus, ZenohConfig, open_session, wait_listening
+from monitor.recording import REJECTED, parts
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = {command: part for part, command in PART_COMMANDS.items()}  # robot-io -> robot_io, ...
@@ -441,7 +441,7 @@ def recording_check(path: Path, robot: str) -> dict[str, Any]:
     """``seq`` gaps per key in the MCAP (every part of it), and the recorder's own arrival latency
     (stamp -> log time).
 
-    Streams the files with a topic filter rather than ``deploy.recording.read``, which holds every
+    Streams the files with a topic filter rather than ``monitor.recording.read``, which holds every
     message (derived Foxglove channels too) in memory at once: an hour is a few hundred MB of it. The
     seqs are checked in their publishers' order: what the recorder got back after missing it (from the
     publishers' caches, ``Topic.kept``) is logged when it came, later than its neighbours.

@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from deploy import messages as m
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
 
 ROOT = Path(__file__).resolve().parents[1]
 # Free ports and unique names: the tests' helper. The repository root goes first: with tests/ alone in

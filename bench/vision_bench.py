@@ -37,9 +37,9 @@ sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the test
 
 from loopback import free_port, unique_name  # noqa: E402
 
-from deploy import messages as m  # noqa: E402
+from bus import messages as m  # noqa: E402
+from bus.transport import Bus, ZenohConfig, open_session  # noqa: E402
 from deploy.config import load_stack_config  # noqa: E402
-from deploy.transport import Bus, ZenohConfig, open_session  # noqa: E402
 from deploy.vision_node import SimFramePublisher  # noqa: E402
 from sim.panda_scene import PandaScene  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera  # noqa: E402

@@ -16,10 +16,10 @@ import pkgutil  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 
+from bus.security import set_command_identity  # noqa: E402
 from common.config import ConfigError  # noqa: E402
 from deploy import commands  # noqa: E402
 from deploy.commands import die_with_supervisor  # noqa: E402
-from deploy.security import set_command_identity  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,7 +1,7 @@
 """The stack config: one typed model of a top-level YAML (``configs/sim.yaml``), parsed once per process.
 
 Each section's model lives beside its library (``robot_io.config``, ``vision.config``,
-``learner.config``, ``deploy.transport``, ``deploy.monitor.server``); this module binds them into
+``learner.config``, ``bus.transport``, ``monitor.server``); this module binds them into
 :class:`StackConfig` and adds the two sections that belong to the deploy layer itself (the learner
 process and the recorder). ``load_stack_config`` is the only reader of these files: nodes and commands
 take the result (or its sections), so a key is read, coerced and checked in one place.
@@ -15,11 +15,11 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from bus.transport import ZenohConfig
 from common.config import Box3, ConfigError, Section, describe, load_yaml, parse
-from deploy.monitor.server import MonitorConfig
-from deploy.transport import ZenohConfig
 from learner.config import AGENT_CONFIGS
 from learner.registry import Algo
+from monitor.server import MonitorConfig
 from robot_io.config import RobotConfig
 from vision.config import VisionConfig
 

@@ -3,7 +3,7 @@
 Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``telemetry/learner`` for every
 finished episode; obeys ``control`` pause/resume (with the operator token when one is set); declares
 ``alive/learner`` so the robot holds while the learner is gone, and its session
-(``deploy.learner_session``: robot-io obeys only the session that took over with the latest reset);
+(``bus.learner_session``: robot-io obeys only the session that took over with the latest reset);
 checkpoints to ``checkpoint_dir/checkpoint.pkl`` every ``checkpoint_every`` steps and at the end, and
 resumes from it on restart. In closed loop, AdaptiveH's chunk tail can be its own plan: the policy mean
 rolled forward on the task's model (``learner.plan: policy``). With ``learner.execution: plan`` the agent
@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from deploy import messages as m
+from bus import messages as m
+from bus.node import Node
+from bus.signing import Fresh, authentic
 from deploy.config import StackConfig
-from deploy.node import Node
 from deploy.plan_channel import PlanDrop
-from deploy.signing import Fresh, authentic
 from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deploy import messages as m
+from bus import messages as m
 from learner.plans import Plan
 
 log = logging.getLogger(__name__)

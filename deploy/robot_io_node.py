@@ -30,12 +30,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from deploy import messages as m
+from bus import messages as m
+from bus.learner_session import SESSIONS
+from bus.node import Node
+from bus.signing import ForgedMessage, Fresh, authentic
 from deploy.config import StackConfig
-from deploy.learner_session import SESSIONS
-from deploy.node import Node
-from deploy.signing import ForgedMessage, Fresh, authentic
 from robot_io.command_gate import TakeoverRefused
+from robot_io.config import RobotConfig
 from robot_io.controller import ArmHeld, ArmState, RobotController, TickResult
 from robot_io.safety import EventThrottle
 
@@ -78,6 +79,16 @@ def prioritize_this_thread(nice: int) -> None:
         )
 
 
+def _controller(robot: RobotConfig) -> RobotController:
+    """The controller in its simulated world when the config has one (the mock arm, franky-sim's scripted
+    target): robot-io on a real arm never imports the simulator."""
+    if robot.backend == "franka" and not robot.franka.simulated_target:
+        return RobotController(robot)
+    from tasks.sim_world import robot_controller
+
+    return robot_controller(robot)
+
+
 class RobotIONode(Node):
     """Run with ``start()``/``stop()`` (or as a context manager); the control loop is its one worker."""
 
@@ -91,7 +102,7 @@ class RobotIONode(Node):
         control_token: str = "",
     ) -> None:
         self.settings = settings
-        self.controller = controller or RobotController(settings.robot)
+        self.controller = controller or _controller(settings.robot)
         self.period = settings.robot.period
         self.watch_peers = watch_peers
         self._fresh_reset, self._fresh_control = Fresh(), Fresh()

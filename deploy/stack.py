@@ -26,14 +26,14 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from deploy import messages as m
+from bus import messages as m
+from bus.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
+from bus.transport import Bus, open_session
 from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
-from deploy.foxglove.derive import Deriver, SceneSetup
-from deploy.recording import Recorder, parts
-from deploy.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
-from deploy.transport import Bus, open_session
 from learner.run_summary import h_stats
+from monitor.foxglove.derive import Deriver, SceneSetup
+from monitor.recording import Recorder, parts
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +216,7 @@ class Stack:
         zc = self.cfg.zenoh
         if not (zc.connect or zc.listen) and zc.mode == "peer":
             # The supervisor owns the loopback hub; the parts join through it and gossip makes a full mesh
-            # of peers (deploy.transport). A hub already taken means another stack is running here.
+            # of peers (bus.transport). A hub already taken means another stack is running here.
             zc = zc.model_copy(update={"listen": (zc.hub,)})
         try:
             session = open_session(zc)
@@ -236,7 +236,7 @@ class Stack:
                 self.name,
                 self.recording_path,
                 self.recording.exclude,
-                deriver=Deriver(self.name, SceneSetup.from_stack(self.cfg)),
+                deriver=Deriver(self.name, SceneSetup.from_vision(self.cfg.vision)),
                 flush_s=self.recording.flush_s,
                 split_s=self.recording.split_s,
             )

@@ -21,10 +21,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from deploy import messages as m
+from bus import messages as m
+from bus.node import Node
+from bus.transport import Bus
 from deploy.config import ConfigError, StackConfig
-from deploy.node import Node
-from deploy.transport import Bus
 from vision.cameras.protocol import Camera, CameraError, Frame
 from vision.config import Intrinsics, VisionConfig
 from vision.pipeline import PipelineOutput, VisionPipeline, annotate
@@ -106,7 +106,7 @@ class VisionNode(Node):
 
     def __init__(self, settings: StackConfig, camera: Camera | None = None, token: str = "") -> None:
         """``token``: the stack's operator token: the targets are signed with its key, and the robot
-        states its simulated camera poses the arm from must be (``deploy.signing``)."""
+        states its simulated camera poses the arm from must be (``bus.signing``)."""
         if settings.vision is None:
             raise ConfigError(f"robot {settings.name}: the config has no vision section")
         self.settings = settings
@@ -135,9 +135,10 @@ class VisionNode(Node):
             self.bus.subscribe(m.CAMERA, self._offer, on_bad=self._on_bad)
             return None
         if self.config.camera == "sim":
+            from tasks.sim_world import replica_scene
             from vision.cameras.sim_mirror import MirrorSimCamera
 
-            mirror = MirrorSimCamera(self.config)
+            mirror = MirrorSimCamera(self.config, replica_scene())
             self.bus.subscribe(m.STATE, lambda s: mirror.set_joints(s.q), on_bad=self._on_bad)
             self.bus.subscribe(
                 m.TARGET_TRUTH,

@@ -35,10 +35,10 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 
-from deploy import messages as m
-from deploy.learner_session import REFUSALS, LearnerSession
+from bus import messages as m
+from bus.learner_session import REFUSALS, LearnerSession
+from bus.transport import Bus
 from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
-from deploy.transport import Bus
 from learner.plans import Executed, Plan
 from tasks.reach import (
     predict_reach,
@@ -81,7 +81,7 @@ class EnvSettings:
     control_rate_hz: float
     max_episode_steps: int
     chunk_len: int
-    target_topic: str  # a key of deploy.messages.TOPICS
+    target_topic: str  # a key of bus.messages.TOPICS
     target_lo: tuple[float, ...]
     target_hi: tuple[float, ...]
     target_speed_max: float
@@ -110,7 +110,7 @@ class ZenohReachEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, bus: Bus, settings: EnvSettings, planner: Planner | None = None) -> None:
-        """A ``bus`` with the stack's key signs this learner's chunks (``deploy.signing``)."""
+        """A ``bus`` with the stack's key signs this learner's chunks (``bus.signing``)."""
         self.bus = bus
         self.settings = settings
         self.planner = planner

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal, get_args
-
-import gymnasium as gym
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 from learner.protocol import Agent
+
+if TYPE_CHECKING:  # configs import the Algo names; only building an agent needs gymnasium
+    import gymnasium as gym
 
 # The algorithms, in the paper's order (its tables and figures list them so); configs declare
 # ``algo: Algo`` and everything else iterates ``ALGOS``.

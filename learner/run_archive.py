@@ -100,7 +100,7 @@ class RecordFile:
 class RunArchive:
     """``segments.jsonl`` and ``episodes.jsonl`` in a checkpoint's directory."""
 
-    def __init__(self, directory: str | Path, log: RunLog, keep: int = 500) -> None:
+    def __init__(self, directory: str | Path, log: RunLog, keep: int = 100) -> None:
         self.keep = keep
         self.files = {k.name: RecordFile(Path(directory) / f"{k.name}.jsonl", k, log, keep) for k in KINDS}
 

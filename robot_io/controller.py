@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -58,9 +59,10 @@ class TickResult:
 
 
 class RobotController:
-    def __init__(self, config: RobotConfig, backend: RobotBackend | None = None) -> None:
+    def __init__(self, config: RobotConfig, backend: RobotBackend | None = None, world: Any = None) -> None:
+        """``backend`` as given, or the configured one in ``world`` (``backends.make_backend``)."""
         self.config = config
-        self.backend = backend if backend is not None else make_backend(config)
+        self.backend = backend if backend is not None else make_backend(config, world)
         self.kin = Kinematics(RobotDescription(config.model))
         self.home = np.asarray(config.home_q, float)
         self.ik = DifferentialIK(

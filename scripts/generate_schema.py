@@ -1,4 +1,4 @@
-"""Regenerate ``deploy/schema/adaptiveh_pb2.py`` (and ``.pyi``) from ``adaptiveh.proto``.
+"""Regenerate ``bus/schema/adaptiveh_pb2.py`` (and ``.pyi``) from ``adaptiveh.proto``.
 
 Needs the dev extra's grpcio-tools (protoc). Run from anywhere: ``python scripts/generate_schema.py``.
 

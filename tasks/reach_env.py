@@ -26,6 +26,7 @@ from tasks.reach import (
     reach_reward,
     reach_success,
 )
+from tasks.sim_world import arm_scene
 
 
 class NSReachEnv(gym.Env):
@@ -44,7 +45,7 @@ class NSReachEnv(gym.Env):
         self.config = RobotConfig(
             backend="pybullet", target_motion=motion, seed=seed, control_rate_hz=control_rate_hz
         )
-        self.arm = RobotController(self.config)
+        self.arm = RobotController(self.config, world=arm_scene(self.config))
         self.scene = self.arm.backend.scene
         self.max_episode_steps = max_episode_steps
         self.terminate_on_success = terminate_on_success

@@ -17,9 +17,9 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from deploy import messages as m
-from deploy.messages import Message, Topic
-from deploy.transport import Bus
+from bus import messages as m
+from bus.messages import Message, Topic
+from bus.transport import Bus
 
 M = TypeVar("M", bound=Message)
 

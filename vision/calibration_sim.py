@@ -9,17 +9,29 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 import pybullet as pb
 from scipy.spatial.transform import Rotation
 
-from sim.panda_scene import PandaScene
 from vision.calibration import BoardView, CharucoBoard
 from vision.cameras.sim import SimRGBDCamera
 from vision.config import Intrinsics, VisionConfig
 from vision.extrinsics import make_transform, matrix_to_pose, pose_to_matrix
+
+
+class BoardScene(Protocol):
+    """What a simulated calibration needs of its scene (``sim.panda_scene.PandaScene`` is one): the arm
+    to pose (``robot.home_q``), its hand's pose, and the PyBullet client to put the board in."""
+
+    client_id: int
+    robot: Any
+
+    def reset_robot(self, q: np.ndarray | tuple[float, ...] | None = None) -> None: ...
+
+    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 def _quad_obj(width: float, height: float) -> str:
@@ -42,7 +54,7 @@ def _quad_obj(width: float, height: float) -> str:
 class SimBoard:
     """The board as a visual-only body in ``scene``, following the hand with a fixed mount."""
 
-    def __init__(self, scene: PandaScene, board: CharucoBoard, gripper_T_board: np.ndarray) -> None:
+    def __init__(self, scene: BoardScene, board: CharucoBoard, gripper_T_board: np.ndarray) -> None:
         self.scene = scene
         self.gripper_T_board = gripper_T_board
         cid = scene.client_id
@@ -75,7 +87,7 @@ class SimBoard:
 
 
 def facing_mount(
-    scene: PandaScene, camera: SimRGBDCamera, board: CharucoBoard, offset: float = 0.06
+    scene: BoardScene, camera: SimRGBDCamera, board: CharucoBoard, offset: float = 0.06
 ) -> np.ndarray:
     """A mount (gripper_T_board) that shows the board to the camera at the home pose.
 
@@ -98,7 +110,7 @@ def facing_mount(
 
 
 def collect(
-    scene: PandaScene,
+    scene: BoardScene,
     camera: SimRGBDCamera,
     board: CharucoBoard,
     views: int = 12,
@@ -130,19 +142,16 @@ def collect(
 
 
 def simulated_session(
-    vision: VisionConfig, views: int = 12, seed: int = 0, scale: float = 2.0
+    vision: VisionConfig, scene: BoardScene, views: int = 12, seed: int = 0, scale: float = 2.0
 ) -> tuple[list[np.ndarray], list[BoardView], Intrinsics, np.ndarray]:
     """A whole calibration session in simulation: (hand poses, board views, intrinsics, true base_T_cam).
 
-    The board on the Panda's hand, random arm poses, the sim camera at ``vision.sim_pose()`` rendered at
-    ``scale`` times the configured size (corners are found more reliably at higher resolution).
+    The board on the Panda's hand in ``scene`` (handed in, e.g. ``tasks.sim_world.replica_scene()``; the
+    caller closes it), random arm poses, the sim camera at ``vision.sim_pose()`` rendered at ``scale``
+    times the configured size (corners are found more reliably at higher resolution).
     """
     k = vision.intrinsics
     k = k.scaled(round(k.width * scale), round(k.height * scale))
-    scene = PandaScene(motion="static", seed=seed)
-    try:
-        camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
-        poses, seen = collect(scene, camera, CharucoBoard(vision.calibration), views=views, seed=seed)
-    finally:
-        scene.close()
+    camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
+    poses, seen = collect(scene, camera, CharucoBoard(vision.calibration), views=views, seed=seed)
     return poses, seen, k, pose_to_matrix(vision.sim_pose())

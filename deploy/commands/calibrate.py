@@ -61,14 +61,16 @@ def write_extrinsics(path: str | Path, position: tuple[float, ...], quaternion: 
 
 
 def _sim_session(settings, args) -> tuple[list, list, object, np.ndarray | None]:
+    from tasks.sim_world import replica_scene
     from vision.calibration_sim import simulated_session
 
-    return simulated_session(settings.vision, args.views, args.seed, args.scale)
+    with replica_scene(args.seed) as scene:
+        return simulated_session(settings.vision, scene, args.views, args.seed, args.scale)
 
 
 def _live_session(settings, args) -> tuple[list, list, object, None]:
-    from deploy import messages as m
-    from deploy.transport import Bus, open_session
+    from bus import messages as m
+    from bus.transport import Bus, open_session
     from robot_io.kinematics import Kinematics
     from vision.calibration import CharucoBoard
     from vision.cameras.realsense import RealSenseCamera

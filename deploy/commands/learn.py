@@ -29,9 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bus.node import on_stop_signal
     from deploy.config import load_stack_config
     from deploy.learner_node import LearnerNode
-    from deploy.node import on_stop_signal
 
     setup_logging(args.log_level)
     overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}

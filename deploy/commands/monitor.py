@@ -20,13 +20,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bus.node import run_until_stopped
+    from bus.signing import mac_key
+    from bus.transport import Bus, open_session
     from deploy.config import load_stack_config
-    from deploy.foxglove.derive import SceneSetup
-    from deploy.foxglove.live import start_live
-    from deploy.monitor.server import MonitorConfig, MonitorServer
-    from deploy.node import run_until_stopped
-    from deploy.signing import mac_key
-    from deploy.transport import Bus, open_session
+    from monitor.foxglove.derive import SceneSetup
+    from monitor.foxglove.live import start_live
+    from monitor.server import MonitorConfig, MonitorServer
 
     setup_logging(args.log_level)
     cfg = load_stack_config(args.config, monitor={"port": args.port, "foxglove_port": args.foxglove_port})
@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     token = operator_token(args)
     bus = Bus(open_session(cfg.zenoh), cfg.name, mac_key(token))  # signs controls with the stack's key
     server = MonitorServer(bus, mcfg, token or None)  # else random: its controls are not the stack's
-    setup = SceneSetup.from_stack(cfg)
+    setup = SceneSetup.from_vision(cfg.vision)
     live = start_live(bus.session, cfg.name, setup, mcfg.host, mcfg.foxglove_port, cfg.recording.exclude)
     print(f"monitor: {server.url}?token={server.token}", flush=True)
     print(f"monitor token: {server.token}", flush=True)

@@ -39,13 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bus.node import on_stop_signal
+    from bus.transport import Bus, open_session
     from deploy.config import load_stack_config
-    from deploy.foxglove.derive import SceneSetup
-    from deploy.foxglove.live import start_live
-    from deploy.monitor.server import MonitorConfig, MonitorServer
-    from deploy.node import on_stop_signal
-    from deploy.recording import read, recorded_robot, replay, replayable
-    from deploy.transport import Bus, open_session
+    from monitor.foxglove.derive import SceneSetup
+    from monitor.foxglove.live import start_live
+    from monitor.recording import read, recorded_robot, replay, replayable
+    from monitor.server import MonitorConfig, MonitorServer
 
     setup_logging(args.log_level)
     stack = load_stack_config(args.config, monitor={"port": args.port})
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_monitor:
         server = MonitorServer(Bus(session, robot), mcfg).start()
         print(f"monitor: {server.url}?token={server.token}", flush=True)
-        live = start_live(session, robot, SceneSetup.from_stack(stack), mcfg.host, mcfg.foxglove_port)
+        live = start_live(session, robot, SceneSetup.from_vision(stack.vision), mcfg.host, mcfg.foxglove_port)
         if live is not None:
             print(f"foxglove: {live.url}", flush=True)
     print(f"replaying {len(records)} messages as adaptiveh/{robot}/...", flush=True)

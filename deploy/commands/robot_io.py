@@ -17,8 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bus.node import run_until_stopped
     from deploy.config import load_stack_config
-    from deploy.node import run_until_stopped
     from deploy.robot_io_node import RobotIONode
 
     setup_logging(args.log_level)

@@ -1,7 +1,7 @@
 """``adaptiveh router``: a Zenoh router (Python session in router mode); ``zenohd`` is the production one.
 
 With ``--config`` the router takes that file's ``zenoh`` section: its TLS certificate (identity
-``router``), the user:password dictionary and the access control of ``zenoh.router`` (deploy.security).
+``router``), the user:password dictionary and the access control of ``zenoh.router`` (bus.security).
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.node import Node, run_until_stopped
-    from deploy.transport import ZenohConfig
+    from bus.node import Node, run_until_stopped
+    from bus.transport import ZenohConfig
 
     if args.config:
         from deploy.config import load_stack_config

@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deploy.node import on_stop_signal
+    from bus.node import on_stop_signal
     from deploy.stack import Stack, check
 
     setup_logging(args.log_level)

@@ -16,8 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bus.node import run_until_stopped
     from deploy.config import load_stack_config
-    from deploy.node import run_until_stopped
     from deploy.vision_node import VisionNode
     from vision.cameras.protocol import CameraError
 

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from common.config import ConfigError
 from robot_io.backends.franky_model import (
     ModelMismatch,
     libfranka_version,
@@ -87,36 +88,18 @@ def _set_scheduling(scheduling: tuple[int, int] | None) -> None:
         os.sched_setscheduler(0, scheduling[0], os.sched_param(scheduling[1]))
 
 
-class SimulatedTarget:
-    """A scripted target for franky-sim, whose world no camera sees (``franka.simulated_target``).
-
-    It has the fields robot-io's ground-truth publisher reads from the PyBullet scene (``target``,
-    ``target_velocity``), and moves by the control period each ``step``, like the mock's target.
-    """
-
-    def __init__(self, config: RobotConfig) -> None:
-        from sim.panda_scene import TargetMotion, TargetState
-
-        self.motion = TargetMotion.preset(config.target_motion)
-        self._state_cls = TargetState
-        self.target = TargetState.start(self.motion, config.seed)
-
-    def reset(self, seed: int | None) -> None:
-        self.target = self._state_cls.start(self.motion, seed)
-
-    def advance(self, dt: float) -> None:
-        self.target.advance(dt)
-
-    def target_velocity(self) -> np.ndarray:
-        return self.target.velocity.copy()
-
-
 class FrankyBackend:
     name = "franka"
 
     def __init__(
-        self, config: RobotConfig, description: RobotDescription | None = None, lib: ModuleType | None = None
+        self,
+        config: RobotConfig,
+        description: RobotDescription | None = None,
+        lib: ModuleType | None = None,
+        target: Any = None,
     ) -> None:
+        """``target``: the scripted target ``franka.simulated_target`` asks for (franky-sim's world has none
+        a camera sees; ``tasks.sim_world.ScriptedTarget``), stepped with the arm."""
         self.config = config
         self.fc = config.franka
         self.franky = lib if lib is not None else importlib.import_module("franky")
@@ -125,7 +108,12 @@ class FrankyBackend:
         self.lower = limits.lower + config.joint_margin_rad
         self.upper = limits.upper - config.joint_margin_rad
         self.period_ms = max(1, round(config.period * 1000))
-        self.scene = SimulatedTarget(config) if self.fc.simulated_target else None
+        if self.fc.simulated_target and target is None:
+            raise ConfigError(
+                "robot.franka.simulated_target needs a scripted target: build the controller with "
+                "tasks.sim_world.robot_world(config) as its world"
+            )
+        self.scene = target if self.fc.simulated_target else None
         self.robot: Any = None
         self._loop_scheduling: tuple[int, int] | None = None
         self.report = None

@@ -1,29 +1,51 @@
-"""The mock arm: sim's PyBullet scene with robot_io's arm model, stepped by the backend at the control rate.
+"""The mock arm: a simulated scene (sim's PyBullet Panda scene), stepped by the backend at the control rate.
 
-The one robot_io module that uses ``sim``: the simulation backend (DESIGN section 1).
+The backend is handed its scene (``tasks.sim_world.robot_world`` builds it with robot_io's arm model):
+robot_io imports neither ``sim`` nor PyBullet, so a real-arm config never loads them.
 """
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
+from common.config import ConfigError
 from robot_io.backends.protocol import Fault, JointState
 from robot_io.config import RobotConfig
-from robot_io.description import robot_model
-from sim.panda_scene import PandaScene
+
+
+class ArmScene(Protocol):
+    """What the mock needs of a simulated world (``sim.panda_scene.PandaScene`` is one)."""
+
+    time: float
+
+    def reset_robot(self, q: np.ndarray | tuple[float, ...] | None = None) -> None: ...
+
+    def reset_target(self, seed: int | None = None) -> None: ...
+
+    def command_positions(self, q: np.ndarray, max_velocity: np.ndarray | None = None) -> None: ...
+
+    def brake(self) -> None: ...
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def step(self, n: int = 1) -> None: ...
+
+    def close(self) -> None: ...
 
 
 class PyBulletBackend:
     name = "pybullet"
 
-    def __init__(self, config: RobotConfig, scene: PandaScene | None = None) -> None:
+    def __init__(self, config: RobotConfig, scene: ArmScene | None) -> None:
+        if scene is None:
+            raise ConfigError(
+                "robot.backend: pybullet needs a simulated scene; build the controller with "
+                "tasks.sim_world.robot_world(config) as its world"
+            )
         self.config = config
-        self.scene = scene or PandaScene(
-            motion=config.target_motion,
-            seed=config.seed,
-            time_step=config.period / config.physics_substeps,
-            robot=robot_model(config.model),  # the config allows the Panda only here
-        )
+        self.scene = scene
         self.substeps = config.physics_substeps
         self.scene.reset_robot(config.home_q)
 

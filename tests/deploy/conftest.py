@@ -9,9 +9,9 @@ from bus_probe import BusProbe
 from loopback import free_endpoint, unique_name
 from stack_helpers import running_part
 
-from deploy import messages as m
+from bus import messages as m
+from bus.transport import Bus, open_session, wait_listening
 from deploy.config import StackConfig
-from deploy.transport import Bus, open_session, wait_listening
 
 RATE = 20.0
 

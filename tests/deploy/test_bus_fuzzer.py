@@ -24,10 +24,10 @@ import pytest
 from bus_probe import BusProbe
 from stack_helpers import PARTS, assert_within_limits, parts_of, start_up, write_stack_config
 
-from deploy import messages as m
+from bus import messages as m
+from bus.signing import authentic, mac_key
+from bus.transport import Bus, open_session
 from deploy.config import load_stack_config
-from deploy.signing import authentic, mac_key
-from deploy.transport import Bus, open_session
 
 FUZZ_S = float(os.environ.get("ADAPTIVEH_FUZZ_S", "12"))
 TOL_M = 0.01  # m: PyBullet tracking slack around the box and the step bound

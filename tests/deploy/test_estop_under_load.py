@@ -60,10 +60,10 @@ import pytest
 from bus_probe import BusProbe
 from stack_helpers import parts_of, wait_for_parts, write_stack_config
 
-from deploy import messages as m
+from bus import messages as m
+from bus.signing import mac_key
+from bus.transport import Bus, open_session
 from deploy.config import load_stack_config
-from deploy.signing import mac_key
-from deploy.transport import Bus, open_session
 
 pytestmark = pytest.mark.slow  # ~1 min of 100 trials under load: `.ci/run` runs it after the default run
 

@@ -26,11 +26,11 @@ import yaml
 from bus_probe import BusProbe
 from stack_helpers import PARTS, assert_within_limits, parts_of, start_up, write_stack_config
 
-from deploy import messages as m
+from bus import messages as m
+from bus.signing import mac_key
+from bus.transport import Bus, open_session
 from deploy.config import load_stack_config
-from deploy.recording import read
-from deploy.signing import mac_key
-from deploy.transport import Bus, open_session
+from monitor.recording import read
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals and /proc")
 STILL_RAD_S = 0.02  # joint speed below which the arm stands still (PyBullet holds a pose to ~1e-5)

@@ -15,8 +15,8 @@ import yaml
 from bus_probe import BusProbe
 from loopback import unique_name
 
-from deploy import messages as m
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
 
 EVERY = 50  # checkpoint_every = one episode, so checkpoints fall on episode boundaries
 

@@ -15,10 +15,10 @@ import time
 import numpy as np
 from bus_probe import send_chunk
 
-from deploy import messages as m
+from bus import messages as m
+from bus.signing import authentic, mac_key
+from bus.transport import Bus, open_session
 from deploy.learner_node import env_settings
-from deploy.signing import authentic, mac_key
-from deploy.transport import Bus, open_session
 from deploy.zenoh_env import ZenohReachEnv
 
 FORGED_STEP = [0.0, 0.05, 0.0]  # a 5 cm sideways step: it would show in the arm's path

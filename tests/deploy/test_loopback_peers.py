@@ -20,7 +20,7 @@ from stack_helpers import learn_one_episode
 
 PROBE = r"""
 import sys, time, threading
-from deploy.transport import ZenohConfig, open_session
+from bus.transport import ZenohConfig, open_session
 hub, robot, me, others = sys.argv[1], sys.argv[2], sys.argv[3], set(sys.argv[4].split(","))
 session = open_session(ZenohConfig(hub=hub))
 heard, lock = set(), threading.Lock()

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from deploy import messages as m
+from bus import messages as m
 from deploy.plan_channel import DelayedSender, PlanBook, cap_steps, played
 from learner.plans import Plan
 

@@ -13,11 +13,11 @@ import time
 import numpy as np
 import pytest
 
-from deploy import messages as m
+from bus import messages as m
+from bus.signing import mac_key
+from bus.transport import Bus, open_session
 from deploy.config import StackConfig
 from deploy.learner_node import LearnerNode, env_settings
-from deploy.signing import mac_key
-from deploy.transport import Bus, open_session
 from deploy.zenoh_env import ZenohReachEnv
 from learner.plans import Executed, Plan
 

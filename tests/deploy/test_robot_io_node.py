@@ -11,9 +11,9 @@ from bus_probe import BusProbe, control
 from loopback import free_port, unique_name
 from stack_helpers import running_part
 
-from deploy import messages as m
-from deploy.learner_session import LearnerSession
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.learner_session import LearnerSession
+from bus.transport import Bus, ZenohConfig, open_session
 
 RATE = 20.0
 PERIOD = 1.0 / RATE

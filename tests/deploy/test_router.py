@@ -12,9 +12,9 @@ from bus_probe import BusProbe
 from loopback import free_endpoint, unique_name
 from stack_helpers import learn_one_episode
 
-from deploy import messages as m
+from bus import messages as m
+from bus.transport import Bus, open_session, wait_listening
 from deploy.config import load_stack_config
-from deploy.transport import Bus, open_session, wait_listening
 
 
 def test_two_routers_carry_a_run(tmp_path):

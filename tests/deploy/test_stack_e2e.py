@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from stack_helpers import write_stack_config
 
-from deploy import recording
+from monitor import recording
 
 STEPS = 8000  # about 7 min at 20 Hz
 SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the first quarter's

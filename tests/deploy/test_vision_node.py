@@ -16,9 +16,9 @@ from bus_probe import BusProbe
 from loopback import free_port, unique_name
 from stack_helpers import running_part
 
-from deploy import messages as m
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
 from deploy.config import StackConfig
-from deploy.transport import Bus, ZenohConfig, open_session
 from deploy.vision_node import SimFramePublisher, frame_from_message, frame_message
 from sim.panda_scene import PandaScene
 from vision.cameras.protocol import Frame

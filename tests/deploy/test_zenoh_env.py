@@ -8,9 +8,9 @@ import pytest
 import yaml
 from loopback import unique_name
 
+from bus.transport import Bus, ZenohConfig, open_session
 from deploy.config import load_stack_config
 from deploy.learner_node import env_settings
-from deploy.transport import Bus, ZenohConfig, open_session
 from deploy.zenoh_env import ZenohReachEnv
 from tasks.reach_env import NSReachEnv
 
@@ -47,7 +47,7 @@ def test_a_lost_target_is_waited_for_not_guessed(endpoint):
     import threading
     import time
 
-    from deploy import messages as m
+    from bus import messages as m
 
     name = unique_name("tw")
     bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), name)

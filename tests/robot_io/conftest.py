@@ -1,11 +1,11 @@
 import pytest
 
 from robot_io.config import RobotConfig
-from robot_io.controller import RobotController
+from tasks.sim_world import robot_controller
 
 
 @pytest.fixture
 def controller():
-    c = RobotController(RobotConfig(target_motion="static"))
+    c = robot_controller(RobotConfig(target_motion="static"))
     yield c
     c.close()

@@ -62,9 +62,9 @@ def test_estop_brakes_within_two_control_periods(controller):
 
 def test_unreachable_goal_is_an_event_not_an_exception():
     from robot_io.config import WorkspaceBox
-    from robot_io.controller import RobotController
+    from tasks.sim_world import robot_controller
 
-    c = RobotController(
+    c = robot_controller(
         RobotConfig(target_motion="static", workspace=WorkspaceBox(lo=(-2, -2, -1), hi=(2, 2, 2)))
     )
     try:

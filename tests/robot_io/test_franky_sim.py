@@ -18,9 +18,9 @@ import yaml
 from bus_probe import BusProbe, control, send_chunk
 from loopback import free_port, unique_name
 
-from deploy import messages as m
-from deploy.learner_session import LearnerSession
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.learner_session import LearnerSession
+from bus.transport import Bus, ZenohConfig, open_session
 
 franky = pytest.importorskip("franky")
 pytest.importorskip("franky_sim")

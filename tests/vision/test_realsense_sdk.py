@@ -327,9 +327,9 @@ def test_vision_node_reports_each_fault_and_never_publishes_a_stale_target():
     from bus_probe import BusProbe
     from loopback import free_port, unique_name
 
-    from deploy import messages as m
+    from bus import messages as m
+    from bus.transport import Bus, ZenohConfig, open_session
     from deploy.config import StackConfig
-    from deploy.transport import Bus, ZenohConfig, open_session
     from deploy.vision_node import VisionNode
     from sim.panda_scene import PandaScene
 

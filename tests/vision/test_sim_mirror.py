@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sim.panda_scene import PandaScene
+from tasks.sim_world import replica_scene
 from vision.cameras.protocol import CameraError
 from vision.cameras.sim import camera_from_config
 from vision.cameras.sim_mirror import MirrorSimCamera
@@ -32,7 +33,7 @@ def test_replica_renders_the_same_picture_as_the_physics_scene():
         truth = camera_from_config(scene.client_id, CONFIG).capture()
         q, _ = scene.joint_state()
         target = scene.target_pose()[0]
-    mirror = MirrorSimCamera(CONFIG)
+    mirror = MirrorSimCamera(CONFIG, replica_scene())
     try:
         stamp = time.time()
         mirror.set_joints(q)
@@ -50,7 +51,7 @@ def test_replica_renders_the_same_picture_as_the_physics_scene():
 
 
 def test_no_world_or_a_stale_world_is_a_camera_error_not_an_old_picture():
-    mirror = MirrorSimCamera(CONFIG, stale_after_s=0.2)
+    mirror = MirrorSimCamera(CONFIG, replica_scene(), stale_after_s=0.2)
     try:
         with pytest.raises(CameraError, match="no joint state or target pose"):
             mirror.capture()
@@ -71,7 +72,7 @@ def test_no_world_or_a_stale_world_is_a_camera_error_not_an_old_picture():
 
 
 def test_capture_keeps_the_configured_rate():
-    mirror = MirrorSimCamera(CONFIG.model_copy(update={"rate_hz": 10.0}))
+    mirror = MirrorSimCamera(CONFIG.model_copy(update={"rate_hz": 10.0}), replica_scene())
     try:
         mirror.set_joints(np.zeros(7))
         t0 = time.monotonic()

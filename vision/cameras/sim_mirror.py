@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -29,6 +30,16 @@ class WorldSnapshot:
     stamp: float  # wall clock when observed
 
 
+class ReplicaScene(Protocol):
+    """What the camera needs of its scene (``sim.panda_scene.PandaScene`` is one)."""
+
+    client_id: int
+
+    def show(self, q: np.ndarray, target_position: np.ndarray) -> None: ...
+
+    def close(self) -> None: ...
+
+
 class MirrorSimCamera:
     """A ``Camera`` over its own replica scene; feed it with ``set_joints``/``set_target`` from any thread.
 
@@ -37,10 +48,10 @@ class MirrorSimCamera:
     a camera that shows an old world as new would hide a dead peer.
     """
 
-    def __init__(self, config: VisionConfig, stale_after_s: float = 0.5) -> None:
-        from sim.panda_scene import PandaScene
-
-        self.scene = PandaScene(motion="static", seed=0)
+    def __init__(self, config: VisionConfig, scene: ReplicaScene, stale_after_s: float = 0.5) -> None:
+        """``scene``: the world to pose and render, handed in (``tasks.sim_world.replica_scene``); the
+        camera owns it from here and closes it."""
+        self.scene = scene
         self._camera = camera_from_config(self.scene.client_id, config)
         self.period = 1.0 / config.rate_hz
         self.stale_after_s = float(stale_after_s)

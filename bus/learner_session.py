@@ -7,7 +7,7 @@ chunk status counts only when it names this session and the chunk's own number, 
 number than mine" (one forged number used to make a learner take every chunk as played).
 
 With the stack's operator token (every part of ``adaptiveh up`` has it, through its environment) chunks
-and resets are signed (``deploy.signing``), and robot-io obeys only those that verify: a peer without
+and resets are signed (``bus.signing``), and robot-io obeys only those that verify: a peer without
 the token, or an altered copy of genuine traffic, cannot steer the arm even when it copies the session
 id. An exact copy verifies, and is refused by its number (stale) or stamp (a reset).
 """
@@ -17,8 +17,8 @@ from __future__ import annotations
 import logging
 import secrets
 
-from deploy import messages as m
-from deploy.transport import Bus
+from bus import messages as m
+from bus.transport import Bus
 
 log = logging.getLogger(__name__)
 SESSIONS = "learner"  # the sessions' tokens live under alive/learner/<id>
@@ -29,7 +29,7 @@ class LearnerSession:
     """Declares the token on ``bus`` at once; ``send`` numbers and stamps chunks, ``reset`` takes over."""
 
     def __init__(self, bus: Bus, session_id: str | None = None) -> None:
-        self.bus = bus  # a bus with the stack's key signs the chunks and resets (deploy.signing)
+        self.bus = bus  # a bus with the stack's key signs the chunks and resets (bus.signing)
         self.id = session_id or secrets.token_hex(8)
         bus.declare_alive(f"{SESSIONS}/{self.id}")
         self._pub = bus.publisher(m.CMD_CHUNK, first_seq=0)

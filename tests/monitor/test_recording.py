@@ -19,8 +19,8 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 from stack_helpers import write_stack_config
 
-from deploy import messages as m
-from deploy.transport import ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import ZenohConfig, open_session
 
 TYPES = {
     "adaptiveh.RobotState",
@@ -209,7 +209,7 @@ def test_replay_into_the_monitor(run: tuple[dict, Path, list]) -> None:
 def test_bytes_that_do_not_decode_are_kept_apart(tmp_path: Path, endpoint: str) -> None:
     """Garbage on a typed key is recorded as an ``adaptiveh.Rejected`` on ``_rejected/<key>``, never
     under the key's schema (a reader would fail on it) and never dropped; replay skips it."""
-    from deploy.recording import Recorder, read
+    from monitor.recording import Recorder, read
 
     session = open_session(ZenohConfig(listen=(endpoint,)))
     path = tmp_path / "r.mcap"
@@ -241,7 +241,7 @@ def test_a_killed_recorder_leaves_everything_to_its_last_flush(tmp_path: Path, e
     """The file as a SIGKILL leaves it (no summary, cut mid-record) reads back up to the last flush."""
     import shutil
 
-    from deploy.recording import Recorder, read
+    from monitor.recording import Recorder, read
 
     session = open_session(ZenohConfig(listen=(endpoint,)))
     path = tmp_path / "r.mcap"
@@ -265,7 +265,7 @@ def test_a_killed_recorder_leaves_everything_to_its_last_flush(tmp_path: Path, e
 def test_old_msgpack_recordings_are_refused_clearly(tmp_path: Path) -> None:
     from mcap.writer import Writer
 
-    from deploy.recording import RecordingError, read
+    from monitor.recording import RecordingError, read
 
     path = tmp_path / "old.mcap"
     with open(path, "wb") as fh:
@@ -283,7 +283,7 @@ def test_a_long_recording_is_split_and_reads_back_whole(tmp_path: Path, endpoint
     """Past ``split_s`` the recorder finishes its file and begins ``<stem>.part2.mcap``: the MCAP writer's
     chunk index stays small. Each part is a whole MCAP file with its own schemas; ``read`` of the first
     reads every part, the per-key sequence going on across them."""
-    from deploy.recording import Recorder, parts, read
+    from monitor.recording import Recorder, parts, read
 
     session = open_session(ZenohConfig(listen=(endpoint,)))
     path = tmp_path / "long.mcap"

@@ -3,7 +3,7 @@
 On one machine the default is loopback with no router: the first session to start listens on the hub
 endpoint and later ones connect to it (peers then find each other by gossip). Across machines set
 ``connect``/``listen`` (or ``mode: client`` pointing at a ``zenohd`` router). Incoming bytes are
-decoded with ``deploy.messages``; a bad message is logged and counted, never raised into Zenoh.
+decoded with ``bus.messages``; a bad message is logged and counted, never raised into Zenoh.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ import zenoh
 import zenoh.ext
 from pydantic import Field, model_validator
 
+from bus import messages, security
+from bus.messages import Message, MessageError, Service, Topic
+from bus.security import AuthConfig, RouterConfig, TlsConfig
+from bus.signing import ForgedMessage, authentic, sign, signed
 from common.config import Section
-from deploy import messages, security
-from deploy.messages import Message, MessageError, Service, Topic
-from deploy.security import AuthConfig, RouterConfig, TlsConfig
-from deploy.signing import ForgedMessage, authentic, sign, signed
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
@@ -50,7 +50,7 @@ class ZenohConfig(Section):
     # every session (the lease a peer declares is what the other side waits for).
     lease_ms: int = Field(1000, ge=200)
     options: dict[str, Any] = {}  # extra Zenoh config keys, e.g. {"transport/...": v}
-    # Several machines (deploy.security): mutual TLS, user/password, and the router's access control.
+    # Several machines (bus.security): mutual TLS, user/password, and the router's access control.
     # Paths and the user may contain {identity}: the process's own (learner, robot-io, ...).
     tls: TlsConfig | None = None
     auth: AuthConfig | None = None
@@ -136,7 +136,7 @@ def open_session(cfg: ZenohConfig, identity: str | None = None) -> zenoh.Session
     """Open a session; with no endpoints configured, listen on the hub or, if taken, join through it.
 
     ``identity`` (default: ``$ADAPTIVEH_ZENOH_IDENTITY``, else the CLI command's) names this process's
-    certificate and credentials when ``cfg`` has ``tls``/``auth`` (deploy.security); a missing file is a
+    certificate and credentials when ``cfg`` has ``tls``/``auth`` (bus.security); a missing file is a
     ConfigError naming the key.
 
     Peers in Zenoh's default ``peer_to_peer`` routing never forward for each other, so a joiner that only
@@ -211,7 +211,7 @@ class Publisher(Generic[M]):
 class Bus:
     """Typed access to ``adaptiveh/<robot>/…`` on one session. Counts bad messages per topic.
 
-    With the stack's ``key`` (``deploy.signing.mac_key`` of the operator token) it signs every message
+    With the stack's ``key`` (``bus.signing.mac_key`` of the operator token) it signs every message
     of a type that has a ``mac`` as it is put (or sent as a query), and drops received ones that do not
     verify, as bad messages (a subscriber may opt out to judge them itself: robot-io answers a forged
     chunk, and obeys an e-stop from anyone)."""

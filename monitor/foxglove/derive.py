@@ -2,7 +2,7 @@
 
 Our channels already decode in Foxglove (protobuf with the schema in the file), but its 3D and image
 panels only draw Foxglove's own schemas. This module turns our messages into them, with no Zenoh and no
-I/O, so the recorder (``deploy.recording``) and the live server (``deploy.foxglove.live``) emit the same
+I/O, so the recorder (``monitor.recording``) and the live server (``monitor.foxglove.live``) emit the same
 channels from the same messages:
 
 - ``foxglove/camera``: the annotated JPEG as ``foxglove.CompressedImage`` in the ``camera`` frame;
@@ -11,14 +11,14 @@ channels from the same messages:
 - ``foxglove/scene``: ``foxglove.SceneUpdate`` with the target, the executed end-effector path, the
   current plan's predicted path (``ActionChunk.predicted_ee``; none when a chunk carries none) and the
   rest of the last plan a newer one cut short (where a plan went stale and the retreat cut it);
-- ``foxglove/robot``: the arm's link meshes, once (``deploy.foxglove.robot_model``);
+- ``foxglove/robot``: the arm's link meshes, once (``monitor.foxglove.robot_model``);
 - ``foxglove/log``: safety events as ``foxglove.Log`` (the Log panel);
 - ``foxglove/distance``, ``foxglove/retreat``: JSON (with a JSON schema) for the plots that need a
   value computed across messages: end effector to target distance, and each segment's closing retreat
   statistic against its threshold.
 
 Channels are ``adaptiveh/<robot>/foxglove/...``: beside the robot's raw ones in Foxglove's topic list.
-They never travel on Zenoh; replay skips them (``deploy.recording.replayable``).
+They never travel on Zenoh; replay skips them (``monitor.recording.replayable``).
 """
 
 from __future__ import annotations
@@ -32,11 +32,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from foxglove import messages as fm
 
-from deploy import messages as m
+from bus import messages as m
 
 if TYPE_CHECKING:
-    from deploy.config import StackConfig
-    from deploy.foxglove.robot_model import ArmPoser
+    from monitor.foxglove.robot_model import ArmPoser
+    from vision.config import VisionConfig
 
 SUB = "foxglove/"
 IMAGE, TF, SCENE, ROBOT, LOG = "camera", "tf", "scene", "robot", "log"
@@ -264,11 +264,11 @@ class SceneSetup:
     arm: ArmPoser | None = None
 
     @classmethod
-    def from_stack(cls, cfg: StackConfig, arm: bool = True) -> SceneSetup:
-        """From the stack config: vision's extrinsics and sim pose, its target size, the Panda's links."""
-        from deploy.foxglove.robot_model import ArmPoser
+    def from_vision(cls, vision: VisionConfig | None, arm: bool = True) -> SceneSetup:
+        """From the stack's vision section (None: no camera): its extrinsics and sim pose, its target
+        size; and the Panda's links."""
+        from monitor.foxglove.robot_model import ArmPoser
 
-        vision = cfg.vision
         camera = camera_sim = None
         size = 0.025
         if vision is not None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 
-from deploy.messages import Message, MessageError
+from bus.messages import Message, MessageError
 
 KEY_CONTEXT = b"adaptiveh message mac v1"
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 from bus_probe import BusProbe
 from loopback import unique_name
 
-from deploy import messages as m
-from deploy.monitor.server import MonitorState
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
+from monitor.server import MonitorState
 
 
 def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):

@@ -23,13 +23,13 @@ from bus_probe import BusProbe
 from loopback import free_port, unique_name
 from stack_helpers import learn_one_episode, running_part
 
+from bus import messages as m
+from bus.security import IDENTITY_ENV
+from bus.transport import Bus, ZenohConfig, open_session
 from common.config import ConfigError
-from deploy import messages as m
 from deploy.commands import TOKEN_ENV
-from deploy.monitor.server import MonitorConfig, MonitorServer
-from deploy.security import IDENTITY_ENV
 from deploy.stack import check
-from deploy.transport import Bus, ZenohConfig, open_session
+from monitor.server import MonitorConfig, MonitorServer
 
 ROOT = Path(__file__).parents[2]
 SHIPPED = ROOT / "configs" / "multi_machine_tls.yaml"
@@ -299,7 +299,7 @@ def test_the_parts_run_through_the_secured_router_and_a_control_needs_the_token(
         assert not [e for e in safety if m.CMD_CHUNK.name in e.detail]  # nor vision's chunk
 
         server = MonitorServer(monitor, MonitorConfig(port=0, foxglove_port=None), token=TOKEN)
-        with caplog.at_level(logging.WARNING, logger="deploy.monitor.server"):
+        with caplog.at_level(logging.WARNING, logger="monitor.server"):
             assert server.control("release", None, "")[0] == 403
             assert server.control("release", None, "wrong")[0] == 403
         assert caplog.text.count("control 'release' refused: wrong or missing token") == 2

@@ -16,8 +16,8 @@ import time
 from collections.abc import Callable
 from typing import ClassVar, Self
 
-from deploy.signing import mac_key
-from deploy.transport import Bus, ZenohConfig
+from bus.signing import mac_key
+from bus.transport import Bus, ZenohConfig
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The message schema's Python face: typed topics, strict decoding, and small numpy helpers.
 
-The messages themselves are defined once, in ``deploy/schema/adaptiveh.proto`` (protobuf: the same
+The messages themselves are defined once, in ``bus/schema/adaptiveh.proto`` (protobuf: the same
 schema serves the wire, the MCAP recordings and Foxglove); this module re-exports the generated
 classes. Each topic binds a key to its type once (``STATE = Topic("state", RobotState)``), so a
 publisher cannot put the wrong type on a key and a subscriber never names the type again.
@@ -24,8 +24,8 @@ from google.protobuf.descriptor import FieldDescriptor
 from google.protobuf.message import DecodeError
 from google.protobuf.message import Message as Message
 
-from deploy.schema import adaptiveh_pb2 as pb
-from deploy.schema.adaptiveh_pb2 import (
+from bus.schema import adaptiveh_pb2 as pb
+from bus.schema.adaptiveh_pb2 import (
     ActionChunk,
     AnnotatedImage,
     CameraFrame,

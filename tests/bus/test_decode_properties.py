@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_messages import SAMPLES
 
-from deploy import messages as m
+from bus import messages as m
 
 CASES = settings(
     max_examples=10_000, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True

@@ -21,11 +21,11 @@ from mcap.reader import make_reader
 from stack_helpers import write_stack_config
 from test_recording import schema_decoder
 
-from deploy import messages as m
-from deploy.foxglove.derive import Deriver, SceneSetup
-from deploy.foxglove.robot_model import obj_to_stl
-from deploy.recording import Recorder
-from deploy.transport import ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import ZenohConfig, open_session
+from monitor.foxglove.derive import Deriver, SceneSetup
+from monitor.foxglove.robot_model import obj_to_stl
+from monitor.recording import Recorder
 
 Q = [0.0, -0.78, 0.0, -2.36, 0.0, 1.57, 0.78]
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from deploy import messages as m
+from bus import messages as m
 
 SAMPLES = [
     m.RobotState(

@@ -23,8 +23,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, Field, model_validator
 
+from bus import messages as m
 from common.config import ConfigError, Section
-from deploy import messages as m
 
 IDENTITY_ENV = "ADAPTIVEH_ZENOH_IDENTITY"
 PLACEHOLDER = "{identity}"
@@ -178,7 +178,7 @@ class RouterConfig(Section):
 
     listen: tuple[str, ...] = ()  # e.g. [tls/0.0.0.0:7447]; --listen overrides
     dictionary_file: str = ""  # user:password per line, for zenoh.auth (only the router machine has it)
-    # roles: Zenoh's ACL with default deny, each identity puts only on its part's keys (deploy.security);
+    # roles: Zenoh's ACL with default deny, each identity puts only on its part's keys (bus.security);
     # none: any session that authenticates may put anything (not "off": YAML reads that as false).
     access_control: Literal["roles", "none"] = "roles"
 

@@ -8,7 +8,7 @@ queued counts, so the page can draw planned against executed and the abandoned r
 stdlib ``http.server`` on 127.0.0.1; the page polls ``/api/state`` (JSON) and ``/api/image.jpg``
 (the vision node's annotated JPEG) a few times a second. ``POST /api/control`` turns a button or a jog
 key into a ``Control`` message; it needs the token printed at start (``X-Token`` header or ``token``
-field). The message carries no token: the bus signs it with the token's key (``deploy.signing``), and
+field). The message carries no token: the bus signs it with the token's key (``bus.signing``), and
 the robot and learner obey only a signed, fresh request (an e-stop from anyone).
 """
 
@@ -28,11 +28,11 @@ from typing import Any
 
 from pydantic import Field
 
+from bus import messages as m
+from bus.learner_session import REFUSALS
+from bus.node import Node
+from bus.transport import Bus
 from common.config import Section
-from deploy import messages as m
-from deploy.learner_session import REFUSALS
-from deploy.node import Node
-from deploy.transport import Bus
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
@@ -54,7 +54,7 @@ class MonitorConfig(Section):
     host: str = "127.0.0.1"
     port: int = Field(8765, ge=0, le=65535)  # 0: any free port
     history: int = Field(600, ge=10)  # points kept per plot
-    # Foxglove WebSocket live view on ``host`` (deploy.foxglove.live); 0: any free port; null: off
+    # Foxglove WebSocket live view on ``host`` (monitor.foxglove.live); 0: any free port; null: off
     foxglove_port: int | None = Field(8766, ge=0, le=65535)
 
 

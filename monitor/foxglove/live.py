@@ -1,8 +1,8 @@
 """The live view: Foxglove's WebSocket protocol, served by ``foxglove-sdk``, fed from the robot's Zenoh bus.
 
-The same channels as a recording (``deploy.recording``): each of the robot's topics as it travels on
+The same channels as a recording (``monitor.recording``): each of the robot's topics as it travels on
 Zenoh (protobuf bytes, schema = the message type and ``adaptiveh.proto``'s FileDescriptorSet, forwarded
-without re-encoding), and the channels ``deploy.foxglove.derive`` computes from them. So one layout
+without re-encoding), and the channels ``monitor.foxglove.derive`` computes from them. So one layout
 (``configs/foxglove_layout.json``) serves a recording and the live stack. Loopback by default: the
 protocol has no authentication, and our web page stays the place for control (e-stop, jog).
 
@@ -19,9 +19,9 @@ import time
 import foxglove
 import zenoh
 
-from deploy import messages as m
-from deploy.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
-from deploy.recording import file_descriptor_set
+from bus import messages as m
+from monitor.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
+from monitor.recording import file_descriptor_set
 
 log = logging.getLogger(__name__)
 

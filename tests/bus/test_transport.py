@@ -7,8 +7,8 @@ import time
 import pytest
 from loopback import unique_name
 
-from deploy import messages as m
-from deploy.transport import Bus, ZenohConfig, open_session
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
 
 
 @pytest.fixture
@@ -86,7 +86,7 @@ def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
         [
             sys.executable,
             "-c",
-            "import time\nfrom deploy.transport import Bus, ZenohConfig, open_session\n"
+            "import time\nfrom bus.transport import Bus, ZenohConfig, open_session\n"
             f"b = Bus(open_session(ZenohConfig(connect=({endpoint!r},))), {name!r})\n"
             "b.declare_alive('learner'); print('up', flush=True); time.sleep(60)",
         ],
@@ -168,8 +168,8 @@ def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
         [
             sys.executable,
             "-c",
-            "import logging, time\nfrom deploy import messages as m\n"
-            "from deploy.transport import Bus, ZenohConfig\nlogging.basicConfig()\n"
+            "import logging, time\nfrom bus import messages as m\n"
+            "from bus.transport import Bus, ZenohConfig\nlogging.basicConfig()\n"
             f"b = Bus.open(ZenohConfig(hub={endpoint!r}), {name!r}); p = b.publisher(m.CHUNK_STATUS)\n"
             "print('up', flush=True)\n"
             "s = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED)\n"

@@ -6,7 +6,7 @@ one schema per message type: its full name (``adaptiveh.RobotState``) and the ``
 Bytes that do not decode as their key's type are kept too, wrapped in an ``adaptiveh.Rejected`` on the
 channel ``_rejected/<key>``: nothing seen on the bus is lost. Given a ``Deriver``, the recorder also
 writes Foxglove's well-known channels derived from the messages (``adaptiveh/<robot>/foxglove/...``:
-image, transforms, 3D scene, log; ``deploy.foxglove.derive``), each with its own schema, so the file
+image, transforms, 3D scene, log; ``monitor.foxglove.derive``), each with its own schema, so the file
 opens in Foxglove's 3D, image and plot panels. ``adaptiveh replay`` republishes the robot's own
 channels (not the rejected or derived ones) with the original timing.
 """
@@ -32,9 +32,9 @@ from mcap.records import Schema as McapSchema
 from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
-from deploy import messages as m
-from deploy.foxglove.derive import Derived, Deriver, is_derived
-from deploy.transport import undeclare_quietly
+from bus import messages as m
+from bus.transport import undeclare_quietly
+from monitor.foxglove.derive import Derived, Deriver, is_derived
 
 log = logging.getLogger(__name__)
 NAMESPACE = m.NAMESPACE
