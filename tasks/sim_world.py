@@ -2,7 +2,8 @@
 
 robot_io and vision import neither ``sim`` nor PyBullet (README, "Layering"): the layer above both wires
 sim's PyBullet Panda scene (or franky-sim's scripted target) into them. ``sim`` is imported only when a
-simulated world is built, so robot-io on a real arm never loads PyBullet.
+simulated world is built, so robot-io on a real arm never loads PyBullet (and vision's replica scene
+does not load robot_io's kinematics).
 """
 
 from __future__ import annotations
@@ -12,16 +13,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from robot_io.config import RobotConfig
-from robot_io.controller import RobotController
-from robot_io.description import robot_model
 
 if TYPE_CHECKING:
+    from robot_io.controller import RobotController
     from sim.panda_scene import PandaScene
 
 
 def arm_scene(config: RobotConfig) -> PandaScene:
     """The mock arm's world: the Panda (robot_io's model) and the moving target, at the config's physics
     step."""
+    from robot_io.description import robot_model
     from sim.panda_scene import PandaScene
 
     return PandaScene(
@@ -66,6 +67,8 @@ def robot_world(config: RobotConfig) -> PandaScene | ScriptedTarget | None:
 
 def robot_controller(config: RobotConfig) -> RobotController:
     """The controller with its simulated world, as robot-io runs it."""
+    from robot_io.controller import RobotController
+
     return RobotController(config, world=robot_world(config))
 
 
