@@ -97,6 +97,7 @@ class AdaptiveH:
         )
         self.segment_limit = cfg.h_max if cfg.retreat != "off" else cfg.fixed_h
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
+        self.alpha = cfg.alpha  # the step per sample now (alpha_final: scheduled)
         self.rng = np.random.default_rng(seed)
         self.log = RunLog()
         self.nonfinite_skipped = 0
@@ -149,6 +150,7 @@ class AdaptiveH:
             return self._step_plan()
         if self._obs is None:
             self._reset_episode()
+        self._schedule()
         obs = self._obs
         s = self.normalize(obs)
         action, raw = self.policy.sample(s, self.rng)
@@ -187,6 +189,7 @@ class AdaptiveH:
         if self._obs is None:
             self._reset_episode()
         if self._plan is None:
+            self._schedule()
             self._plan = self._make_plan(self._obs)
             self._plan_started = False
             self.channel.send(self._plan)
@@ -306,6 +309,16 @@ class AdaptiveH:
             return self.grad_scale * self.critic.expected_gradient(s, mean, sigma), advantage
         return self.grad_scale * advantage * score, advantage
 
+    def _schedule(self) -> None:
+        """This step's exploration std and step size on their schedules (``sigma_final``, ``alpha_final``):
+        a policy still moving at full step and full noise late in a run swings between good and bad."""
+        cfg = self.config
+        frac = min(self.log.global_step / cfg.schedule_steps, 1.0)
+        if cfg.alpha_final is not None:
+            self.alpha = cfg.alpha + (cfg.alpha_final - cfg.alpha) * frac
+        if cfg.sigma_final is not None:
+            self.policy.explore((cfg.sigma + (cfg.sigma_final - cfg.sigma) * frac) * self.policy.half_range)
+
     def _close_segment(self, reason: str) -> SegmentRecord | None:
         states, grads = self.retreat.states, self.retreat.grads
         if not states:
@@ -316,10 +329,10 @@ class AdaptiveH:
             if matured:
                 upd_states, upd_grads = zip(*matured, strict=True)
                 self.policy.update(
-                    list(upd_states), list(upd_grads), cfg.alpha, cfg.weight_decay, cfg.mean_limit
+                    list(upd_states), list(upd_grads), self.alpha, cfg.weight_decay, cfg.mean_limit
                 )
         else:
-            self.policy.update(states, grads, cfg.alpha, cfg.weight_decay, cfg.mean_limit)
+            self.policy.update(states, grads, self.alpha, cfg.weight_decay, cfg.mean_limit)
         record = SegmentRecord(
             index=self.log.segment_count,
             global_step=self.log.global_step,

@@ -22,6 +22,12 @@ class AdaptiveHConfig(Section):
     gamma: float = Field(0.99, gt=0, lt=1)
     alpha: float = Field(0.02, gt=0)
     sigma: float = Field(0.3, gt=0)  # exploration std, as a fraction of the action half-range
+    # Schedules, linear from sigma / alpha over schedule_steps, then constant (None: constant). The score
+    # keeps sigma's Σ⁻¹, so a smaller std also shrinks the step like a natural gradient's; with the
+    # annealed Σ⁻¹ the step grew as 1/std and NS Pendulum runs diverged (README, "The learner").
+    sigma_final: float | None = Field(None, gt=0)
+    alpha_final: float | None = Field(None, gt=0)
+    schedule_steps: int = Field(20000, ge=1)
     bandwidth: Positive | list[Positive] = 0.4  # on states normalised to [-1, 1]; one or one per dimension
     policy_budget: int = Field(300, ge=1)
     policy_ald: float = Field(0.05, ge=0, lt=1)

@@ -33,6 +33,12 @@ class RKHSGaussianPolicy:
         self.sigma_inv2 = 1.0 / self.sigma**2
         self.f = RKHSFunction(kernel, len(self.low), budget, ald_threshold)
 
+    def explore(self, sigma: np.ndarray | float) -> None:
+        """Sample with std ``sigma`` from now on. The score keeps the initial ``Σ⁻¹``: for an action drawn
+        at std σ it is the true score times σ²/σ₀², the step shrinking with the std as the natural
+        gradient's does (the Fisher information of the mean is Σ⁻¹)."""
+        self.sigma = np.broadcast_to(np.asarray(sigma, float), self.low.shape).copy()
+
     def mean(self, s: np.ndarray) -> np.ndarray:
         return self.centre + self.half_range * np.tanh(self.f(s))
 
