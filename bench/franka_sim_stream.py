@@ -139,15 +139,23 @@ class Counts:
         self.lock = threading.Lock()
         self.chunks = self.played = self.ticks = self.resets = 0
         self.events: list[tuple[float, str, str]] = []
-        self.holds: list[float] = []  # when the backend began braking (a hold while streaming)
+        # When the backend began braking (a hold while streaming), and resumed streaming after one.
+        self.holds: list[float] = []
+        self.resumes: list[float] = []
         push, tick, react, reset = c.push_chunk, c.tick, c.react, c.reset
-        backend, hold = c.backend, c.backend.hold
+        backend, hold, send = c.backend, c.backend.hold, c.backend.send_joint_command
 
         def on_hold() -> None:
             if not backend._stopping:
                 with self.lock:
                     self.holds.append(time.monotonic())
             hold()
+
+        def on_send(q: Any) -> None:
+            if backend._stopping:
+                with self.lock:
+                    self.resumes.append(time.monotonic())
+            send(q)
 
         def on_push(*args: Any, **kw: Any) -> Any:
             with self.lock:
@@ -171,10 +179,12 @@ class Counts:
         c.react = lambda now: on_result(react(now), False)
         c.reset = on_reset
         backend.hold = on_hold
+        backend.send_joint_command = on_send
 
-    def since_hold(self, t: float) -> float | None:
-        """Seconds from the newest brake that began before ``t`` (None: none did)."""
-        before = [h for h in self.holds if h <= t]
+    @staticmethod
+    def since(times: list[float], t: float) -> float | None:
+        """Seconds from the newest of ``times`` before ``t`` (None: none was)."""
+        before = [h for h in times if h <= t]
         return round(t - before[-1], 3) if before else None
 
 
@@ -355,10 +365,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "reflexes": len(reflexes),
         "reflex_reasons": [{"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes],
         "faults_seen_by_robot_io": [
-            {"t_s": round(t, 1), "s_after_brake": counts.since_hold(t + t0), "detail": d.splitlines()[0]}
+            {
+                "t_s": round(t, 1),
+                "s_after_brake": counts.since(counts.holds, t + t0),
+                "s_after_resume": counts.since(counts.resumes, t + t0),
+                "detail": d.splitlines()[0],
+            }
             for t, _, d in faults
         ],
         "brakes": len(counts.holds),
+        "resumes_after_brake": len(counts.resumes),
         "operator_releases": releases,
         "control_command_success_rate_franka_sim": {
             "commanded_cycles": cycles,
