@@ -1,0 +1,112 @@
+"""Brakes while streaming, on franka-sim: how many end in a discontinuity reflex, at a given hold jerk.
+
+The 10-minute learner stream (bench/franka_sim_stream.py) saw its reflexes 17-27 ms after a brake began
+(2 of its 12 brakes, none in ~8000 streamed preemptions), so this bench brakes often: robot-io's franky
+backend streams a joint sinusoid at 20 Hz (0.15 rad, 0.5 Hz on every joint: ~0.5 rad/s, ~1.5 rad/s^2)
+for ``--stream-s``, brakes (``hold()``) and waits ``--hold-s``, ``--brakes`` times, against franka-sim
+with its communication constraints and motion limits enforced. A reflex is recovered as the operator's
+release would. ``--hold ACCEL,JERK`` replaces the acceleration and jerk fractions of the backend's
+``HOLD_DYNAMICS``.
+
+    bash scripts/franka_sim_venv.sh
+    python bench/franka_sim_brakes.py --hold 0.8,0.3 --hold 0.8,0.1 --hold 0.5,0.3   # ~2.5 min each
+Merged under ``franka_sim_brakes`` into results/franka_bench.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from robot_io.backends import franky_backend  # noqa: E402
+from robot_io.backends.franky_sim import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
+from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+
+HOST = "127.0.0.64"
+PERIOD = 0.05
+
+
+def run(hold: tuple[float, ...], brakes: int, stream_s: float, hold_s: float) -> dict[str, Any]:
+    franky_backend.HOLD_DYNAMICS = (franky_backend.HOLD_DYNAMICS[0], *hold)
+    cfg = RobotConfig(
+        backend="franka",
+        model="fr3",
+        control_rate_hz=1 / PERIOD,
+        franka=FrankaConfig(ip=HOST, realtime="ignore"),
+    )
+    with FrankaSimServer(HOST, urdf=franky_sim_fr3_urdf(), fifo_priority=99) as server:
+        backend = franky_backend.FrankyBackend(cfg)
+        home = np.asarray(cfg.home_q, float)
+        faults, t0 = [], time.monotonic()
+        try:
+            backend.reset(home, None)
+            for k in range(brakes):
+                start = time.monotonic()
+                while (t := time.monotonic() - start) < stream_s:
+                    backend.send_joint_command(home + 0.15 * np.sin(2 * np.pi * 0.5 * (t + k * stream_s)))
+                    time.sleep(PERIOD - (time.monotonic() - start - t) % PERIOD)
+                backend.hold()
+                time.sleep(hold_s)
+                if (fault := backend.fault()) is not None:
+                    faults.append(
+                        {"brake": k, "t_s": round(time.monotonic() - t0, 1), "kinds": list(fault.kinds)}
+                    )
+                    backend.recover()
+                    backend.reset(home, None)
+                if k % 20 == 19:
+                    print(f"  hold {hold}: {k + 1}/{brakes} brakes, {len(faults)} faults", flush=True)
+            time.sleep(2 * server.stats_period_s)
+            stats = dict(server.stats)
+        finally:
+            backend.close()
+    return {
+        "hold_dynamics": list(franky_backend.HOLD_DYNAMICS),
+        "brakes": brakes,
+        "faults": len(faults),
+        "reflexes_franka_sim": [r["reason"] for r in stats.get("reflexes", [])],
+        "lost_cycles": stats.get("lost_cycles"),
+        "commanded_cycles": stats.get("commanded_cycles"),
+        "fault_list": faults,
+        "wall_s": round(time.monotonic() - t0, 1),
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--hold", action="append", default=[], metavar="ACCEL,JERK", help="HOLD_DYNAMICS fractions to try"
+    )
+    ap.add_argument("--brakes", type=int, default=100)
+    ap.add_argument("--stream-s", type=float, default=1.0)
+    ap.add_argument("--hold-s", type=float, default=0.4)
+    args = ap.parse_args()
+    out = {
+        "command": "python bench/franka_sim_brakes.py " + " ".join(sys.argv[1:]),
+        "machine": {"cpus": os.cpu_count(), "load": os.getloadavg()},
+        "runs": [
+            run(tuple(float(x) for x in h.split(",")), args.brakes, args.stream_s, args.hold_s)
+            for h in (args.hold or [",".join(map(str, franky_backend.HOLD_DYNAMICS[1:]))])
+        ],
+    }
+    for r in out["runs"]:
+        reflexes = r["reflexes_franka_sim"]
+        print(f"hold {r['hold_dynamics']}: {r['faults']} faults in {r['brakes']} brakes; {reflexes}")
+    path = ROOT / "results" / "franka_bench.json"
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data["franka_sim_brakes"] = out
+    path.write_text(json.dumps(data, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
