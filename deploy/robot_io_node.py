@@ -82,7 +82,7 @@ def prioritize_this_thread(nice: int) -> None:
 def _controller(robot: RobotConfig) -> RobotController:
     """The controller in its simulated world when the config has one (the mock arm, franky-sim's scripted
     target): robot-io on a real arm never imports the simulator."""
-    if robot.backend == "franka" and not robot.franka.simulated_target:
+    if not robot.simulated:
         return RobotController(robot)
     from tasks.sim_world import robot_controller
 

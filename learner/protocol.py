@@ -51,20 +51,26 @@ class RunLog:
     segments_before: int = 0
     episodes_before: int = 0
 
+    def count(self, kind: str) -> int:
+        """Every record of ``kind`` ("segments" or "episodes") in the run, in memory or not: the next one's
+        number."""
+        return getattr(self, f"{kind}_before") + len(getattr(self, kind))
+
+    def since(self, kind: str, count: int) -> list[Any]:
+        """The records of ``kind`` made after the first ``count`` of the run (those still in memory)."""
+        newer = self.count(kind) - count
+        return getattr(self, kind)[-newer:] if newer > 0 else []
+
     @property
     def segment_count(self) -> int:
-        """Every segment of the run, in memory or not: the next segment's index."""
-        return self.segments_before + len(self.segments)
+        return self.count("segments")
 
     @property
     def episode_count(self) -> int:
-        """Every episode of the run, in memory or not: the next episode's number."""
-        return self.episodes_before + len(self.episodes)
+        return self.count("episodes")
 
     def segments_since(self, count: int) -> list[SegmentRecord]:
-        """The segments closed after the first ``count`` of the run (those still in memory)."""
-        newer = self.segment_count - count
-        return self.segments[-newer:] if newer > 0 else []
+        return self.since("segments", count)
 
     def to_dict(self) -> dict[str, Any]:
         return {

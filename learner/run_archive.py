@@ -42,7 +42,7 @@ class RecordFile:
         """Resume the file for ``log`` (from its checkpoint, or new): records the file holds beyond the
         log's count were undone by the resume and are dropped."""
         self.path, self.kind, self.keep = path, kind, keep
-        count, before = self._count(log), self._before(log)
+        count, before = log.count(kind.name), getattr(log, f"{kind.name}_before")
         kept = [r for r in self.read() if self._number(r) < count]
         if [self._number(r) for r in kept] != list(range(len(kept))) or len(kept) < before:
             logger.error(
@@ -61,17 +61,17 @@ class RecordFile:
 
     def add(self, log: RunLog) -> None:
         """Append ``log``'s records not yet on file, then trim memory to the newest ``keep``."""
-        items: list[Any] = getattr(log, self.kind.name)
-        newer = self._count(log) - self.written
-        new = items[-newer:] if newer > 0 else []
+        new = log.since(self.kind.name, self.written)
         if new:
             with self.path.open("a") as fh:
                 fh.write("".join(_line(r) for r in new))
             self.written = self._number(new[-1]) + 1
+        items: list[Any] = getattr(log, self.kind.name)
         extra = len(items) - self.keep
         if extra >= self.keep:  # trim in batches: a del at the front moves the whole list
             del items[:extra]
-            setattr(log, f"{self.kind.name}_before", self._before(log) + extra)
+            before = f"{self.kind.name}_before"
+            setattr(log, before, getattr(log, before) + extra)
 
     def read(self) -> list[Any]:
         """Every whole record on file."""
@@ -89,12 +89,6 @@ class RecordFile:
 
     def _number(self, record: Any) -> int:
         return int(getattr(record, self.kind.number))
-
-    def _before(self, log: RunLog) -> int:
-        return int(getattr(log, f"{self.kind.name}_before"))
-
-    def _count(self, log: RunLog) -> int:
-        return self._before(log) + len(getattr(log, self.kind.name))
 
 
 class RunArchive:

@@ -112,5 +112,11 @@ class RobotConfig(Section):
         return self
 
     @property
+    def simulated(self) -> bool:
+        """The arm or its target is simulated: the backend needs a world built above robot_io
+        (``tasks.sim_world.robot_world``)."""
+        return self.backend == "pybullet" or self.franka.simulated_target
+
+    @property
     def period(self) -> float:
         return 1.0 / self.control_rate_hz

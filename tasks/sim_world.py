@@ -60,9 +60,9 @@ class ScriptedTarget:
 def robot_world(config: RobotConfig) -> PandaScene | ScriptedTarget | None:
     """What the configured backend runs in or beside: the mock's scene, franky-sim's scripted target, or
     nothing (a real arm)."""
-    if config.backend == "pybullet":
-        return arm_scene(config)
-    return ScriptedTarget(config) if config.franka.simulated_target else None
+    if not config.simulated:
+        return None
+    return arm_scene(config) if config.backend == "pybullet" else ScriptedTarget(config)
 
 
 def robot_controller(config: RobotConfig) -> RobotController:
