@@ -27,6 +27,7 @@ import numpy as np
 from bus import messages as m
 from bus.node import Node
 from bus.signing import Fresh, authentic
+from common.heap import release_free_heap
 from deploy.config import StackConfig
 from deploy.plan_channel import PlanDrop
 from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
@@ -185,7 +186,9 @@ class LearnerNode(Node):
 
     # -- run -----------------------------------------------------------------------------------------
     def save(self) -> None:
+        """Checkpoint, then hand the writer's freed buffers back to the OS (``common.heap``)."""
         self.agent.save(self.ckpt)
+        release_free_heap()
 
     def run(self, progress: Any = None) -> dict[str, Any]:
         """Learn the remaining steps; ``progress(node)`` is called after every step."""

@@ -29,6 +29,7 @@ import zenoh
 from bus import messages as m
 from bus.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
 from bus.transport import Bus, open_session
+from common.heap import ALLOCATOR_ENV
 from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
 from learner.run_summary import h_stats
@@ -146,8 +147,10 @@ class Stack:
         return {part: [*base, *args, *tail] for part, args in cmds.items()}
 
     def part_environment(self, part: str | None = None) -> dict[str, str]:
-        """The parts' environment; ``part``'s own Zenoh identity (its certificate on a secured bus)."""
+        """The parts' environment; ``part``'s own Zenoh identity (its certificate on a secured bus). The
+        allocator settings (``common.heap``) apply unless this process's environment sets them."""
         env = {
+            **ALLOCATOR_ENV,
             **os.environ,
             "PYTHONUNBUFFERED": "1",
             SUPERVISOR_ENV: str(os.getpid()),

@@ -71,9 +71,12 @@ JOINT_DYNAMICS_LIMITS = {
 # commands it receives by differencing them (sent as float32: ~0.5 rad/s^2 of rounding at q ~ 2 rad),
 # and a command that misses its 1 ms cycle is replaced by a constant-acceleration extrapolation, so the
 # next one reads up to about twice the planned jerk: braking at 0.9 of the FR3's jerk limit tripped
-# jerk reflexes on franka-sim after single lost cycles. The jerk is franka.dynamics' default; the
-# acceleration stays high so that a hold still stops within about two control periods.
-HOLD_DYNAMICS = (1.0, 0.8, 0.3)
+# jerk reflexes on franka-sim after single lost cycles. A lost cycle while decelerating hard reads as a
+# velocity step too (franky extrapolates from the robot's reported dq_d/ddq_d): with 3 busy loops beside
+# franka-sim, braking at 0.8 of the acceleration limit ended 6 of 100 brakes in a reflex, at 0.4 none
+# (bench/franka_sim_brakes.py --burn 3). 0.4 (4 rad/s^2 on an FR3) still stills a 0.2 rad/s joint within
+# two control periods; the jerk is franka.dynamics' default.
+HOLD_DYNAMICS = (1.0, 0.4, 0.3)
 
 
 def _scheduling() -> tuple[int, int] | None:

@@ -16,6 +16,8 @@ import pytest
 import yaml
 from stack_helpers import PARTS, parts_of, write_stack_config
 
+from common.heap import ALLOCATOR_ENV
+
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_a_crashed_part_is_restarted_and_the_token_is_never_on_a_command_line(tmp_path):
@@ -41,7 +43,10 @@ def test_a_crashed_part_is_restarted_and_the_token_is_never_on_a_command_line(tm
         for pid in parts.values():
             argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
             assert token not in argv
-            assert f"ADAPTIVEH_TOKEN={token}".encode() in Path(f"/proc/{pid}/environ").read_bytes()
+            environ = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+            assert f"ADAPTIVEH_TOKEN={token}".encode() in environ
+            for name, value in ALLOCATOR_ENV.items():  # bounded allocator caches, unless the user set them
+                assert f"{name}={os.environ.get(name, value)}".encode() in environ
         os.kill(parts["vision"], signal.SIGKILL)
         deadline = time.monotonic() + 30
         while parts_of(path).get("vision") in (None, parts["vision"]):
