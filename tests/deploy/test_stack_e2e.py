@@ -6,9 +6,10 @@ its mean final distance below the first quarter's; retreats happen and at least 
 preempts queued actions on the robot (dropped > 0). Marked slow: `.ci/run` runs it after the default
 run (``pytest -m e2e`` runs it alone). Measured with 6000 steps: distance 0.41 -> 0.05 m, success by
 quarter 0 / 0 / 3 / 73 %.
-Through the stack, learning takes off anywhere from step ~2000 to past 4000 (in-process NS Reach at the
-same seed: by 1000-2000), so a short run would make the bar a coin toss: 8000 steps leave the last
-quarter (6000-8000) well after every take-off we saw.
+Through the stack, learning takes off anywhere from step ~2000 to ~7000 (in-process NS Reach at the
+same seed: by 1000-2000; four soaks on 2 cores: ~3500, ~3500, < 10000, 4850-8360; two 8000-step runs of
+this test in CI never took off, their arm pinned at a workspace wall), so a short run would make the bar a
+coin toss: 10000 steps leave the last quarter (7500-10000) after every take-off we saw.
 """
 
 import json
@@ -21,13 +22,13 @@ from stack_helpers import write_stack_config
 
 from monitor import recording
 
-STEPS = 8000  # about 7 min at 20 Hz
+STEPS = 10000  # about 9 min at 20 Hz
 SUCCESS_BAR = 0.2  # last quarter's success rate must reach this, and beat the first quarter's
 
 
 @pytest.mark.e2e
 @pytest.mark.slow
-@pytest.mark.timeout(960)  # 8000 ticks at 20 Hz take ~7 min; its own run's timeout is 900 s
+@pytest.mark.timeout(1260)  # 10000 ticks at 20 Hz take ~9 min; its own run's timeout is 1200 s
 def test_stack_learns_reach_over_zenoh(tmp_path):
     path, cfg = write_stack_config(tmp_path, "e2e", vision_rate_hz=10.0, steps=STEPS, checkpoint_every=600)
     out = tmp_path / "summary.json"
@@ -35,7 +36,7 @@ def test_stack_learns_reach_over_zenoh(tmp_path):
         [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out)],
         capture_output=True,
         text=True,
-        timeout=900,
+        timeout=1200,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     s = json.loads(out.read_text())
