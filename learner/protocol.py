@@ -51,10 +51,18 @@ class RunLog:
     segments_before: int = 0
     episodes_before: int = 0
 
+    def before(self, kind: str) -> int:
+        """Records of ``kind`` ("segments" or "episodes") no longer in memory (on file)."""
+        return int(getattr(self, f"{kind}_before"))
+
     def count(self, kind: str) -> int:
-        """Every record of ``kind`` ("segments" or "episodes") in the run, in memory or not: the next one's
-        number."""
-        return getattr(self, f"{kind}_before") + len(getattr(self, kind))
+        """Every record of ``kind`` in the run, in memory or not: the next one's number."""
+        return self.before(kind) + len(getattr(self, kind))
+
+    def forget(self, kind: str, n: int) -> None:
+        """Drop the oldest ``n`` in-memory records of ``kind`` (kept on file); numbering goes on."""
+        del getattr(self, kind)[:n]
+        setattr(self, f"{kind}_before", self.before(kind) + n)
 
     def since(self, kind: str, count: int) -> list[Any]:
         """The records of ``kind`` made after the first ``count`` of the run (those still in memory)."""

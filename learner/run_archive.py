@@ -42,7 +42,7 @@ class RecordFile:
         """Resume the file for ``log`` (from its checkpoint, or new): records the file holds beyond the
         log's count were undone by the resume and are dropped."""
         self.path, self.kind, self.keep = path, kind, keep
-        count, before = log.count(kind.name), getattr(log, f"{kind.name}_before")
+        count, before = log.count(kind.name), log.before(kind.name)
         kept = [r for r in self.read() if self._number(r) < count]
         if [self._number(r) for r in kept] != list(range(len(kept))) or len(kept) < before:
             logger.error(
@@ -66,12 +66,9 @@ class RecordFile:
             with self.path.open("a") as fh:
                 fh.write("".join(_line(r) for r in new))
             self.written = self._number(new[-1]) + 1
-        items: list[Any] = getattr(log, self.kind.name)
-        extra = len(items) - self.keep
+        extra = len(getattr(log, self.kind.name)) - self.keep
         if extra >= self.keep:  # trim in batches: a del at the front moves the whole list
-            del items[:extra]
-            before = f"{self.kind.name}_before"
-            setattr(log, before, getattr(log, before) + extra)
+            log.forget(self.kind.name, extra)
 
     def read(self) -> list[Any]:
         """Every whole record on file."""
