@@ -15,10 +15,11 @@ Reported: reflexes (franka-sim's aborts, and the faults robot-io saw), ``control
 (libfranka's robot state, sampled while a motion runs; and franka-sim's own count of every commanded
 cycle), the commanded motion (peak joint speed; peak acceleration and jerk as franka-sim measured them
 against its limits, the commands a reflex rejected included), tracking, and what the learner did.
-franka-sim's own FR3 URDF is offered first: robot-io's model check refuses it (see
-``model_check_franka_sim_urdf``), so the run serves the FR3 URDF franky-sim ships (the kinematics and
-limits of robot-io's ``fr3`` description) on franka-sim's physics (franky-sim's FR3 MJCF) and limit
-tables. Merged under ``franka_sim_stream`` into results/franka_bench.json.
+franka-sim's own FR3 URDF is offered first to robot-io's model check (see
+``model_check_franka_sim_urdf``); accepted, it is what the run serves (its limits lie within 0.01 rad
+of Franka's documented ones, which ``fr3`` uses), otherwise the FR3 URDF franky-sim ships. The physics
+is franky-sim's FR3 MJCF, the limit tables franka-sim's. Merged under ``franka_sim_stream`` into
+results/franka_bench.json.
 
     bash scripts/franka_sim_venv.sh                 # once
     python bench/franka_sim_stream.py               # 10 minutes (--minutes N)
@@ -286,7 +287,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         cfg_path = stack_config(args, tmp)
         cfg = load_stack_config(cfg_path)
         fifo = args.sim_fifo_priority or None
-        server = FrankaSimServer(args.host, urdf=franky_sim_fr3_urdf(), fifo_priority=fifo).start()
+        served = None if model_check["accepted"] else franky_sim_fr3_urdf()
+        server = FrankaSimServer(args.host, urdf=served, fifo_priority=fifo).start()
         print(
             f"franka-sim on {args.host}:1337 (communication constraints and motion limits enforced)",
             flush=True,
@@ -353,7 +355,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else ""),
         "simulator": "franka-sim 1.1.7 (MuJoCo 3.2, franky-sim's FR3 MJCF), --enforce-comm-constraints and "
         "--enforce-motion-limits; franky-control 2.0.0 (libfranka 0.21.2)",
-        "served_urdf": "franky-sim's fr3_clean.urdf (franka-sim's own is refused by the model check, below)",
+        "served_urdf": "franka-sim's own fr3.urdf (accepted by the model check, below)"
+        if model_check["accepted"]
+        else "franky-sim's fr3_clean.urdf (franka-sim's own is refused by the model check, below)",
         "model_check_franka_sim_urdf": model_check,
         "route": "robot-io node (controller, IK, franky backend) in the bench process; `adaptiveh learn` "
         f"as its own process ({args.config}: AdaptiveH, reach task, chunks over Zenoh)",

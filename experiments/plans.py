@@ -7,7 +7,15 @@ Every run executes in plan mode (``execution: plan``, ``learner.plans``): a segm
 * the **points**: AdaptiveH with the ``plan`` retreat at each threshold in ``THRESHOLDS`` and with the
   ``local`` retreat (its default threshold);
 * the **latency** sweep: fixed H = 1, fixed H = 10 and AdaptiveH (``plan``, 0.8) with a new plan taking
-  effect ``latency_steps`` in ``LATENCIES`` steps late, on ``LATENCY_SETTINGS``.
+  effect ``latency_steps`` in ``LATENCIES`` steps late, on ``LATENCY_SETTINGS``;
+* the **baselines** in the same mode (``td3-h<H>``, ``ddpg-h<H>``, ``sac-h<H>``;
+  ``learner.baselines_plan``): the deterministic actor plus its exploration noise (SAC: its stochastic
+  policy) over the same nominal model, re-planning every H steps, so every method meets the same
+  constraint. SB3 runs cost ~300 s per 20k steps on one core (10-20x an RKHS run), so the budget is
+  small: ``BASELINE_METHODS`` (TD3, SAC) at ``BASELINE_H`` (H = 10, the middle of the front) on
+  ``BASELINE_SETTINGS`` (NS CartPole fast, NS Reach slow) with ``BASELINE_SEEDS`` (3) seeds, 12 runs,
+  about 1-2 CPU-hours. H = 1 is their closed loop: the report takes those points (TD3, DDPG, SAC) from
+  the paper bench's runs of the same env, seed and budget (``--paper-dir``) rather than re-running them.
 
 The runs go through the paper bench's runner (one process per run, resumable ``runs/<name>.json``);
 ``experiments.plans_report`` builds ``summary.json``, ``summary.md`` and the figures from whatever is
@@ -16,7 +24,7 @@ finished. This module is what the worker processes import: it holds the plan onl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +48,11 @@ DRIFT_PAIRS = (("cartpole_slow", "cartpole_fast"), ("reach_slow", "reach_fast"))
 FULL_SEEDS = 5
 QUICK_SEEDS = 2
 QUICK_STEPS = {"NSCartPoleContinuous-v0": 1000, "NSPendulum-v0": 1000, "NSReach-v0": 500}
+PLAN_BASELINES = ("td3", "ddpg", "sac")  # the off-policy SB3 baselines that can run in plan mode
+BASELINE_METHODS = ("td3", "sac")
+BASELINE_H = (10,)
+BASELINE_SETTINGS = ("cartpole_fast", "reach_slow")
+BASELINE_SEEDS = 3
 
 
 def fixed_method(h: int) -> str:
@@ -50,28 +63,58 @@ def plan_method(threshold: float) -> str:
     return f"adaptiveh-plan{threshold:g}"
 
 
+def baseline_method(algo: str, h: int) -> str:
+    return f"{algo}-h{h}"
+
+
 LOCAL_METHOD = "adaptiveh-local"
 
 
+def _horizon(method: str, prefix: str) -> int:
+    """The H of ``<prefix><H>``: a positive integer written plainly (``10``, not ``010`` or ``+10``)."""
+    text = method.removeprefix(prefix)
+    if not text.isdigit() or text != str(int(text)) or int(text) < 1:
+        raise ValueError(f"unknown method {method!r}: H must be a positive integer ({prefix}10)")
+    return int(text)
+
+
+def baseline_of(method: str) -> tuple[str, int] | None:
+    """(algo, H) of a plan-mode baseline method ``td3-h<H>``, ``ddpg-h<H>``, ``sac-h<H>``; None otherwise."""
+    algo, sep, _ = method.partition("-h")
+    if not sep or algo not in PLAN_BASELINES:
+        return None
+    return algo, _horizon(method, f"{algo}-h")
+
+
 def method_config(method: str) -> tuple[str, dict[str, Any]]:
-    """(algo, agent overrides) of a method name: ``rkhs-h<H>``, ``adaptiveh-plan<t>``, ``adaptiveh-local``."""
+    """(algo, agent overrides) of a method name: ``rkhs-h<H>``, ``adaptiveh-plan<t>``, ``adaptiveh-local``,
+    or a baseline ``td3-h<H>`` / ``ddpg-h<H>`` / ``sac-h<H>`` (``plan_h`` H; H = 1 is its closed loop)."""
     if method.startswith("rkhs-h"):
-        return "rkhs", {"execution": "plan", "fixed_h": int(method.removeprefix("rkhs-h"))}
+        return "rkhs", {"execution": "plan", "fixed_h": _horizon(method, "rkhs-h")}
     if method.startswith("adaptiveh-plan"):
         t = float(method.removeprefix("adaptiveh-plan"))
         return "adaptiveh", {"execution": "plan", "retreat": "plan", "retreat_threshold": t}
     if method == LOCAL_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "local", "retreat_threshold": None}
+    base = baseline_of(method)
+    if base is not None:
+        return base[0], {"plan_h": base[1]}
     raise ValueError(f"unknown method {method!r}")
 
 
 def method_label(method: str) -> str:
     if method.startswith("rkhs-h"):
-        h = int(method.removeprefix("rkhs-h"))
+        h = _horizon(method, "rkhs-h")
         return "fixed H = 1 (closed loop)" if h == 1 else f"fixed H = {h}"
     if method.startswith("adaptiveh-plan"):
         return f"AdaptiveH, plan retreat {method.removeprefix('adaptiveh-plan')}"
-    return "AdaptiveH, local retreat"
+    if method == LOCAL_METHOD:
+        return "AdaptiveH, local retreat"
+    base = baseline_of(method)
+    if base is not None:
+        algo, h = base
+        return f"{algo.upper()}, H = 1 (closed loop)" if h == 1 else f"{algo.upper()}, H = {h}"
+    raise ValueError(f"unknown method {method!r}")
 
 
 @dataclass(frozen=True)
@@ -104,6 +147,9 @@ class PlansPlan:
     latency_seeds: list[int]
     steps: dict[str, int]
     quick: bool
+    baseline_methods: list[str] = field(default_factory=list)  # td3-h10, sac-h10, ...
+    baseline_settings: list[str] = field(default_factory=list)
+    baseline_seeds: list[int] = field(default_factory=list)
 
     @property
     def front(self) -> list[str]:
@@ -132,9 +178,15 @@ def build_plans_plan(
     front_h: tuple[int, ...] = FRONT_H,
     thresholds: tuple[float, ...] = THRESHOLDS,
     latencies: tuple[int, ...] = LATENCIES,
+    baseline_methods: tuple[str, ...] = BASELINE_METHODS,
+    baseline_h: tuple[int, ...] = BASELINE_H,
+    baseline_settings: tuple[str, ...] = BASELINE_SETTINGS,
+    baseline_seeds: int = BASELINE_SEEDS,
 ) -> PlansPlan:
     """The runs, ordered so that a partial experiment is already useful: seed by seed (cheap settings
-    first within a seed), each seed's latency runs after the next seed's front and points."""
+    first within a seed), each seed's latency runs, then its plan-mode baselines, after the next seed's
+    front and points. The baselines run on ``baseline_settings`` among ``settings``, for the first
+    ``baseline_seeds`` seeds (at most the experiment's)."""
     keys = list(settings or SETTINGS)
     for key in keys:
         if key not in SETTINGS:
@@ -143,6 +195,14 @@ def build_plans_plan(
     n_lat = min(n_seeds, latency_seeds) if latency_seeds is not None else n_seeds
     if n_seeds < 1 or n_lat < 0:
         raise ValueError(f"seeds must be >= 1 (got {n_seeds}) and latency seeds >= 0 (got {n_lat})")
+    if baseline_seeds < 0:
+        raise ValueError(f"baseline seeds must be >= 0, got {baseline_seeds}")
+    for algo in baseline_methods:
+        if algo not in PLAN_BASELINES:
+            raise ValueError(f"unknown plan-mode baseline {algo!r}; choose from {PLAN_BASELINES}")
+    base_methods = [baseline_method(a, h) for a in baseline_methods for h in baseline_h]
+    for method in base_methods:
+        baseline_of(method)  # H >= 1
     if steps is not None and steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
@@ -153,7 +213,9 @@ def build_plans_plan(
 
     def spec(key: str, method: str, seed: int, latency: int = 0) -> PlanRunSpec:
         algo, overrides = method_config(method)
-        cfg = {**agent_config(SETTINGS[key], algo), **overrides, "latency_steps": latency}
+        cfg = {**agent_config(SETTINGS[key], algo), **overrides}
+        if algo in ("adaptiveh", "rkhs"):  # the SB3 baselines have no learner latency
+            cfg["latency_steps"] = latency
         cfg = {k: v for k, v in cfg.items() if v is not None}
         kwargs = env_kwargs(SETTINGS[key], seed)
         return PlanRunSpec(key, algo, seed, budget[key], cfg, kwargs, method, latency)
@@ -168,8 +230,16 @@ def build_plans_plan(
             if r.name not in have:  # latency 0 of the front / points is the same run
                 lat_runs.append(r)
                 have.add(r.name)
-    # Each seed's latency runs follow the next seed's front and points: s0, s1, L-s0, s2, L-s1, s3, ...
-    runs = sorted(main_runs + lat_runs, key=lambda r: 2 * r.seed + (3 if r.latency else 0))
+    base_settings = [k for k in cheap_first if k in baseline_settings]
+    n_base = min(n_seeds, baseline_seeds)
+    base_runs = [spec(k, m, s) for s in range(n_base) for k in base_settings for m in base_methods]
+    base_runs = [r for r in base_runs if r.name not in have]
+    # Each seed's latency runs, then its baselines, follow the next seed's front and points:
+    # s0, s1, L-s0, B-s0, s2, L-s1, B-s1, s3, ... (a stable sort keeps latency before baselines)
+    runs = sorted(
+        main_runs + lat_runs + base_runs,
+        key=lambda r: 2 * r.seed + (3 if r.latency or baseline_of(r.method) else 0),
+    )
     return PlansPlan(
         runs=runs,
         settings=keys,
@@ -182,6 +252,9 @@ def build_plans_plan(
         latency_seeds=list(range(n_lat)),
         steps=budget,
         quick=quick,
+        baseline_methods=base_methods,
+        baseline_settings=base_settings,
+        baseline_seeds=list(range(n_base)),
     )
 
 

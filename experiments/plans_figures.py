@@ -1,4 +1,5 @@
-"""Figures of the plans experiment: the fixed-H front with the AdaptiveH points, latency, H slow vs fast."""
+"""Figures of the plans experiment: the fixed-H front with the AdaptiveH points and the baselines (in plan
+mode, and their closed loop from the paper bench), latency, H slow vs fast."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from experiments.figures import _kilo_steps, _save
 from experiments.plans import PlansPlan
 
 POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "tab:green", "tab:pink"]
-BASE_STYLE = {"td3": ("tab:blue", "s"), "ddpg": ("tab:cyan", "D")}
+BASE_STYLE = {"td3": ("tab:blue", "s"), "ddpg": ("tab:cyan", "D"), "sac": ("tab:olive", "P")}
 
 
 def _err(stat: dict[str, Any]) -> list[list[float]]:
@@ -53,17 +54,48 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
             capsize=2,
             label=f"{p['label']}: {p['vs_front']['position']}",
         )
+    closed_at = {}  # the closed-loop points, side by side right of H = 1 so they do not hide it
     for k, (algo, b) in enumerate(s["baselines"].items()):
         color, marker = BASE_STYLE.get(algo, ("grey", "^"))
+        closed_at[algo] = (100.0 * (1.12 + 0.12 * k), b["final_return"]["mean"])
         ax.errorbar(
-            100.0 * (1.12 + 0.12 * k),
-            b["final_return"]["mean"],
+            *closed_at[algo],
             yerr=_err(b["final_return"]),
             fmt=marker,
             mfc="none",
             color=color,
             capsize=2,
             label=f"{algo.upper()} closed loop (paper bench, n={b['n']})",
+        )
+    missing = []
+    for b in s.get("plan_baselines", {}).values():
+        color, marker = BASE_STYLE.get(b["algo"], ("grey", "^"))
+        if not b["n"]:
+            missing.append(b["label"])
+            continue
+        x, y = b["replans_per_100"]["mean"], b["final_return"]["mean"]
+        ax.errorbar(
+            x,
+            y,
+            yerr=_err(b["final_return"]),
+            xerr=_err(b["replans_per_100"]),
+            fmt=marker,
+            markersize=7,
+            color=color,
+            capsize=2,
+            label=f"{b['label']}, plan mode (n={b['n']}): {b['vs_front']['position']}",
+        )
+        if b["algo"] in closed_at:  # the same algorithm from its closed loop to plan mode
+            cx, cy = closed_at[b["algo"]]
+            ax.plot([cx, x], [cy, y], linestyle=":", color=color, linewidth=1)
+    if missing:
+        ax.text(
+            0.02,
+            0.02,
+            "plan-mode baselines missing: " + ", ".join(missing),
+            transform=ax.transAxes,
+            fontsize=6,
+            color="grey",
         )
     if not front and not any(p["n"] for p in s["points"].values()):
         ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center", color="grey")
@@ -90,7 +122,8 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     for ax in list(axes.flat)[len(settings) :]:
         ax.axis("off")
     fig.suptitle(
-        "Plan execution: return vs re-plans per 100 steps; fixed-H front (mean, 95% band) and AdaptiveH"
+        "Plan execution: return vs re-plans per 100 steps; fixed-H front (mean, 95% band), AdaptiveH and "
+        "the baselines in plan mode"
     )
     paths.append(_save(fig, out_dir / "front.png"))
 

@@ -5,8 +5,9 @@ Per setting: the fixed-H **front** (final return against re-plans per 100 steps,
 the front's return interpolated at the point's re-plan rate (linear in log re-plan rate, between the
 two fixed-H neighbours; clamped at the front's ends, marked ``extrapolated``), the difference with a
 bootstrap interval that resamples the seeds of every group apart —, the **latency** curves, **H under
-slow vs fast drift**, TD3/DDPG closed-loop reference points from the paper bench, verdicts, and which
-runs are missing.
+slow vs fast drift**, the **baselines in plan mode** (TD3/DDPG/SAC re-planning every H steps over the
+same model, placed against the front like a point), TD3/DDPG/SAC closed-loop (H = 1) reference points
+from the paper bench, verdicts, and which runs are missing.
 """
 
 from __future__ import annotations
@@ -20,8 +21,10 @@ import numpy as np
 from experiments.plans import (
     DRIFT_PAIRS,
     LATENCY_THRESHOLD,
+    PLAN_BASELINES,
     SETTINGS,
     PlansPlan,
+    baseline_of,
     env_kwargs,
     fixed_method,
     method_label,
@@ -32,17 +35,30 @@ from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, outcome
 from experiments.verdicts import _overall
 from learner.run_summary import h_stats
 
-BASELINES = ("td3", "ddpg")
+BASELINES = ("td3", "ddpg", "sac")  # closed-loop reference points taken from the paper bench
 POSITION = {"better": "above the front", "worse": "below the front", "tie": "on the front (tie)"}
 
 
+def closed_loop_baseline(run: dict[str, Any]) -> bool:
+    """An SB3 baseline run with ``plan_h`` 1: SB3's closed loop, which records no segments."""
+    plan_h = (run.get("config") or {}).get("plan_h", 1)
+    return run.get("algo") in PLAN_BASELINES and int(plan_h) == 1
+
+
 def run_numbers(run: dict[str, Any]) -> dict[str, Any]:
-    """The per-run numbers of the experiment (the run file keeps every segment's H and global step)."""
+    """The per-run numbers of the experiment (the run file keeps every segment's H and global step).
+
+    A closed-loop SB3 run (``plan_h`` 1) records no segments: it chooses anew at every step, i.e. one
+    segment of H = 1 per step and nothing ever dropped.
+    """
     seg = run["segments"]
     steps = max(1, int(run["global_step"]))
-    hs = h_stats(seg["H"]) if seg["H"] else {"mean": None, "median": None}
     channel = run.get("plan_channel") or {}
     dropped = channel.get("dropped_planned")
+    if closed_loop_baseline(run) and not seg["H"]:
+        seg = {"H": [1] * int(run["global_step"]), "reason": ["h_max"] * int(run["global_step"])}
+        dropped = 0
+    hs = h_stats(seg["H"]) if seg["H"] else {"mean": None, "median": None}
     retreats = sum(r == "retreat" for r in seg["reason"])
     return {
         "final_return": run["metrics"]["final_return"],
@@ -147,6 +163,46 @@ def front_gap(
     }
 
 
+def _vs_front(pairs: list[tuple[list[float], list[float]]], st: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A group's final return against the fixed-H front at its re-plan rate (``front_gap``), with outcome."""
+    gap = front_gap(pairs, (st["per_seed"]["replans_per_100"], st["per_seed"]["final_return"]), seed=seed)
+    gap["outcome"] = outcome(gap)
+    gap["position"] = POSITION.get(gap["outcome"], gap["outcome"])
+    return {"metric": "final_return", "interpolation": "linear in log re-plans/100", **gap}
+
+
+def _plan_baselines(
+    plan: PlansPlan,
+    runs: dict[str, dict[str, Any]],
+    key: str,
+    pairs: list[tuple[list[float], list[float]]],
+    closed: dict[str, Any],
+) -> dict[str, Any]:
+    """The baselines in plan mode on this setting (those planned here; a group without finished runs
+    has n 0): their numbers, their place against the front, and the plan's cost against their closed
+    loop (the paper bench's H = 1 run of the same env and seeds, when there is one)."""
+    out: dict[str, Any] = {}
+    if key not in plan.baseline_settings:
+        return out
+    for i, method in enumerate(plan.baseline_methods):
+        algo, h = baseline_of(method)  # type: ignore[misc]
+        st = group_stats(plan.finished(runs, key, method))
+        vs_closed = None
+        if algo in closed:
+            d = bootstrap_diff(st["per_seed"]["final_return"], closed[algo]["per_seed"])
+            vs_closed = {**d, "outcome": outcome(d)}
+        out[method] = {
+            "label": method_label(method),
+            "algo": algo,
+            "H": h,
+            **st,
+            "planned_seeds": [r.seed for r in plan.planned(key, method)],
+            "vs_front": _vs_front(pairs, st, seed=100 + i),
+            "minus_closed_loop": vs_closed,  # plan mode minus the same algorithm's closed loop
+        }
+    return out
+
+
 def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: dict[str, Any]) -> dict:
     front = []
     for h in plan.front_h:
@@ -156,16 +212,12 @@ def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: d
         metric: [(f["per_seed"]["replans_per_100"], f["per_seed"][metric]) for f in front]
         for metric in ("final_return",)
     }
+    plan_base = _plan_baselines(plan, runs, key, pairs["final_return"], base)
     best = max((f for f in front if f["n"]), key=lambda f: f["final_return"]["mean"], default=None)
     points = {}
     for i, method in enumerate(plan.points):
         group = plan.finished(runs, key, method)
         st = group_stats(group)
-        gap = front_gap(
-            pairs["final_return"], (st["per_seed"]["replans_per_100"], st["per_seed"]["final_return"]), seed=i
-        )
-        gap["outcome"] = outcome(gap)
-        gap["position"] = POSITION.get(gap["outcome"], gap["outcome"])
         rate = st["replans_per_100"]["mean"]
         dominated_by = [
             f["H"]
@@ -183,14 +235,19 @@ def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: d
         for algo, b in base.items():
             d = bootstrap_diff(st["per_seed"]["final_return"], b["per_seed"])
             vs_base[algo] = {**d, "outcome": outcome(d)}
+        vs_plan_base = {}
+        for other, b in plan_base.items():  # the same constraint: AdaptiveH minus the baseline in plan mode
+            d = bootstrap_diff(st["per_seed"]["final_return"], b["per_seed"]["final_return"])
+            vs_plan_base[other] = {**d, "outcome": outcome(d)}
         hs = _h_stats(group) if group else {"n": 0}
         points[method] = {
             "label": method_label(method),
             **st,
-            "vs_front": {"metric": "final_return", "interpolation": "linear in log re-plans/100", **gap},
+            "vs_front": _vs_front(pairs["final_return"], st, seed=i),
             "dominated_by_fixed_H": dominated_by,
             "vs_best_fixed_H": vs_best,
             "vs_closed_loop_baselines": vs_base,
+            "vs_plan_baselines": vs_plan_base,
             "H_over_time": hs.get("evolution"),
             "per_seed_median_H": hs.get("per_seed_median_H", []),
         }
@@ -200,11 +257,13 @@ def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: d
         "front": front,
         "points": points,
         "baselines": base,
+        "plan_baselines": plan_base,
     }
 
 
 def paper_baselines(plan: PlansPlan, key: str, paper_dir: Path | None) -> dict[str, Any]:
-    """TD3/DDPG closed-loop final returns from the paper bench's runs of the same env, seeds and steps."""
+    """TD3/DDPG/SAC closed-loop final returns from the paper bench's runs of the same env, seeds and steps
+    (H = 1 of the plan-mode baselines: SB3's own loop, which the paper bench runs unchanged)."""
     out: dict[str, Any] = {}
     if paper_dir is None:
         return out
@@ -229,6 +288,7 @@ def paper_baselines(plan: PlansPlan, key: str, paper_dir: Path | None) -> dict[s
                 "per_seed": vals,
                 "execution": "closed loop (H = 1), results/paper",
                 "replans_per_100": 100.0,
+                "H": 1,
             }
     return out
 
@@ -337,6 +397,18 @@ def plans_verdicts(
         "comparisons": comps,
         "verdict": _overall(list(comps.values())),
     }
+    if plan.baseline_methods:
+        comps = {
+            f"{k}:{m}:{b}": d
+            for k, s in settings.items()
+            for m, p in s["points"].items()
+            for b, d in p.get("vs_plan_baselines", {}).items()
+        }
+        out["above_plan_baselines"] = {
+            "metric": "final return, AdaptiveH minus TD3/DDPG/SAC in plan mode (same model, re-plan every H)",
+            "comparisons": comps,
+            "verdict": _overall(list(comps.values())),
+        }
     return out
 
 
@@ -360,8 +432,10 @@ def plans_aggregate(plan: PlansPlan, runs: dict[str, dict[str, Any]], paper_dir:
             "runs_finished": sum(r.name in runs for r in plan.runs),
             "bootstrap_resamples": N_BOOT,
             "execution": "plan (every run); latency_steps 0 unless in the latency sweep",
-            "baselines": "TD3/DDPG closed loop (H = 1) from the paper bench's runs where env, seed and "
-            "steps match; plan-mode baselines at H > 1 were not run",
+            "baseline_methods": plan.baseline_methods,
+            "baseline_settings": plan.baseline_settings,
+            "baseline_seeds": plan.baseline_seeds,
+            "baselines": _baselines_note(plan),
         },
         "settings": settings,
         "latency": latency,
@@ -373,6 +447,18 @@ def plans_aggregate(plan: PlansPlan, runs: dict[str, dict[str, Any]], paper_dir:
         "dirty_runs": sum((r.get("code") or {}).get("dirty") is not False for r in runs.values()),
         "per_run": {name: run_numbers(r) for name, r in sorted(runs.items())},
     }
+
+
+def _baselines_note(plan: PlansPlan) -> str:
+    closed = "TD3/DDPG/SAC closed loop (H = 1) from the paper bench's runs where env, seed and steps match"
+    if not plan.baseline_methods or not plan.baseline_settings:
+        return f"{closed}; plan-mode baselines (H > 1) not in this plan"
+    return (
+        f"{closed}; in plan mode (re-planning every H steps over the nominal model): "
+        f"{', '.join(method_label(m) for m in plan.baseline_methods)} on "
+        f"{', '.join(plan.baseline_settings)}, seeds {plan.baseline_seeds} (the budget: ~300 s per 20k "
+        "SB3 steps on one core)"
+    )
 
 
 def plans_report(plan: PlansPlan, out_dir: Path, paper_dir: Path | None = None) -> dict[str, Any]:

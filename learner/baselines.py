@@ -34,6 +34,11 @@ forces changed.
   the drift per global step. n_steps stays 1024 per env, so the gradient steps per env sample
   (n_epochs / batch) are the zoo's; a rollout cut by the step budget is not trained on (PPO trains
   on whole rollouts only), and the zoo's 1e5-step budget is the bench's 20k like every method's.
+
+Plan execution (issue #11, ``learner.baselines_plan``): ``plan_h`` (TD3, DDPG, SAC; default 1, the
+closed loop above, bit for bit) > 1 plays committed plans of ``plan_h`` actions sampled over the env's
+nominal model, re-planned every ``plan_h`` steps and at each episode start, as the fixed-H RKHS learner
+does in ``execution: plan``; segments go to the ``RunLog``, the plan counters are ``agent.channel``.
 """
 
 from __future__ import annotations
@@ -54,8 +59,9 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import NormalActionNoise
 
+from learner.baselines_plan import PLAN_CLASSES, PlanQueue, world_model
 from learner.config import PPOConfig, SACConfig, SB3Config
-from learner.protocol import EpisodeRecord, RunLog, StepCallback
+from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 
 BaselineConfig = SB3Config | SACConfig | PPOConfig
 SB3_CLASSES: dict[str, type[BaseAlgorithm]] = {"td3": TD3, "ddpg": DDPG, "sac": SAC, "ppo": PPO}
@@ -174,8 +180,32 @@ class SB3Agent:
         self.log = RunLog()
         self._ep_return = 0.0
         self._ep_length = 0
+        # Plan execution (plan_h > 1): the plan queue's counters, read by the benches like the RKHS
+        # learners' plan channel; None in the closed loop.
+        self.channel: PlanQueue | None = None
         torch.set_num_threads(self.config.torch_threads)
         self.model = self._build()
+        self._attach_planner()
+
+    @property
+    def plan_h(self) -> int:
+        return int(getattr(self.config, "plan_h", 1))
+
+    def _model_class(self) -> type[BaseAlgorithm]:
+        """SB3's own class in the closed loop; its plan-execution subclass when ``plan_h`` > 1."""
+        return PLAN_CLASSES[self.algo] if self.plan_h > 1 else SB3_CLASSES[self.algo]
+
+    def _attach_planner(self) -> None:
+        self.channel = None
+        if self.plan_h > 1:
+            self.channel = PlanQueue(self.plan_h, world_model(self.env), self._record_segment)
+        if hasattr(self.model, "plan_queue"):
+            self.model.plan_queue = self.channel  # type: ignore[union-attr]
+
+    def _record_segment(self, H: int, reason: str, global_step: int) -> None:
+        self.log.segments.append(
+            SegmentRecord(index=self.log.segment_count, global_step=global_step, H=H, reason=reason)
+        )
 
     def _build(self) -> BaseAlgorithm:
         cfg = self.config
@@ -200,7 +230,7 @@ class SB3Agent:
                 **common,
             )
         if isinstance(cfg, SACConfig):
-            return SAC(
+            return self._model_class()(
                 "MlpPolicy",
                 self.env,
                 learning_rate=cfg.learning_rate,
@@ -218,7 +248,7 @@ class SB3Agent:
             )
         n_act = int(np.prod(self.env.action_space.shape))
         noise = NormalActionNoise(mean=np.zeros(n_act), sigma=cfg.noise_std * np.ones(n_act))
-        return SB3_CLASSES[self.algo](
+        return self._model_class()(
             "MlpPolicy",
             self.env,
             learning_rate=cfg.learning_rate,
@@ -302,7 +332,7 @@ class SB3Agent:
         self.config = SB3_CONFIGS[self.algo](**meta["config"])
         self.seed = int(meta["seed"])
         torch.set_num_threads(self.config.torch_threads)
-        self.model = SB3_CLASSES[self.algo].load(io.BytesIO(model_bytes), env=self.env, device="cpu")
+        self.model = self._model_class().load(io.BytesIO(model_bytes), env=self.env, device="cpu")
         if self.algo not in ON_POLICY:
             self.model.load_replay_buffer(io.BytesIO(buffer_bytes))
         self.model._last_obs = None  # force a fresh episode on this env at the next learn()
@@ -314,3 +344,4 @@ class SB3Agent:
             set_state(rng["env"])
         self.log = log
         self._ep_return, self._ep_length = 0.0, 0
+        self._attach_planner()  # the running episode is abandoned, and with it any open plan

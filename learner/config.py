@@ -113,6 +113,9 @@ class SB3Config(Section):
     noise_std: float = Field(0.1, ge=0)
     net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [400, 300], min_length=1)
     torch_threads: int = Field(1, ge=1)
+    # Plan execution (learner/baselines_plan.py): every plan_h steps and at each episode start, plan
+    # plan_h actions over the env's nominal model and play them open loop. 1: the closed loop.
+    plan_h: int = Field(1, ge=1)
 
 
 class SACConfig(Section):
@@ -130,6 +133,7 @@ class SACConfig(Section):
     use_sde: bool = False
     net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [256, 256], min_length=1)
     torch_threads: int = Field(1, ge=1)
+    plan_h: int = Field(1, ge=1)  # plan execution, as SB3Config's (1: the closed loop)
 
 
 class PPOConfig(Section):

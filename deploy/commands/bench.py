@@ -38,7 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "plans",
         help="plan execution: AdaptiveH against the fixed-H front (return vs re-plans), latency, H slow/fast",
         description="Every run in plan execution: fixed-H RKHS at H in {1,2,5,10,20,50} as a front, "
-        "AdaptiveH (plan retreat at 0.5/0.8/0.9, local retreat) as points, a learner-latency sweep, on NS "
+        "AdaptiveH (plan retreat at 0.5/0.8/0.9, local retreat) as points, TD3 and SAC in plan mode at "
+        "H = 10 (NS CartPole fast, NS Reach slow, seeds 0-2), a learner-latency sweep, on NS "
         "CartPole slow/fast, NS Pendulum, NS Reach slow/fast, seeds 0-4. Resumable; writes summary.json, "
         "summary.md and front.png, latency.png, h_drift.png from all finished runs.",
     )
@@ -55,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--paper-dir",
         type=Path,
         default=Path("results/paper"),
-        help="the paper bench's results: TD3/DDPG closed-loop reference points",
+        help="the paper bench's results: TD3/DDPG/SAC closed-loop (H = 1) reference points",
     )
     plans.add_argument(
         "--report-only", action="store_true", help="only rebuild the report from finished runs"

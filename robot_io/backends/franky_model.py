@@ -6,7 +6,8 @@ kinematics (``Robot.model``) and, from robot server version 9 on, hands out the 
 wrong arm (or an arm whose kinematics differ from the file) is refused before anything moves:
 
 - flange pose, ours (Pinocchio) vs libfranka's, at fixed configurations inside both arms' limits;
-- joint position limits, ours vs the connected arm's URDF, when the server provides it;
+- joint position limits, when the server provides its URDF: ours must lie within the arm's (a wider
+  served range is fine, since our IK never leaves ours; a narrower one means commands the arm refuses);
 - the arm family implied by the robot server version (5 and below: Panda/FER; 6 and up: FR3), since
   Panda and FR3 share their kinematic chain and only differ in limits.
 
@@ -99,6 +100,16 @@ def urdf_joint_limits(urdf: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lower), np.array(upper)
 
 
+def limits_overreach(
+    lower: np.ndarray, upper: np.ndarray, arm_lower: np.ndarray, arm_upper: np.ndarray
+) -> tuple[int, float]:
+    """The joint (0-based) where our range reaches furthest beyond the arm's, and by how much (rad;
+    zero or less when ours lies within the arm's everywhere)."""
+    beyond = np.maximum(arm_lower - lower, upper - arm_upper)
+    joint = int(np.argmax(beyond))
+    return joint, float(beyond[joint])
+
+
 def verify_model(
     robot: Any, franky: Any, description: RobotDescription, server_version: int | None
 ) -> ModelReport:
@@ -138,9 +149,12 @@ def verify_model(
         mine = description.limits
         if len(lower) >= 7:
             limits_checked = True
-            gap = max(np.max(np.abs(lower[:7] - mine.lower)), np.max(np.abs(upper[:7] - mine.upper)))
-            if gap > LIMIT_TOLERANCE_RAD:
-                problems.append(f"its joint limits differ from {name}'s by up to {gap:.3f} rad")
+            joint, beyond = limits_overreach(mine.lower, mine.upper, lower[:7], upper[:7])
+            if beyond > LIMIT_TOLERANCE_RAD:
+                problems.append(
+                    f"its joint limits are narrower than {name}'s by up to {beyond:.3f} rad "
+                    f"(joint {joint + 1}), so our IK could command positions it refuses"
+                )
     if problems:
         raise ModelMismatch(
             f"robot.model is {name!r}, but the arm at {robot.fci_hostname} is not: "

@@ -1,5 +1,6 @@
-"""The plans bench on a tiny budget: runs in plan mode, the front/point/latency/drift report, figures,
-TD3/DDPG reference points, resumability and a partial report that names its missing runs (< 60 s)."""
+"""The plans bench on a tiny budget: runs in plan mode (TD3 too), the front/point/latency/drift report,
+figures, the baselines in plan mode and their closed-loop reference points, resumability and a partial
+report that names its missing runs (< 90 s)."""
 
 from __future__ import annotations
 
@@ -12,13 +13,28 @@ import numpy as np
 import pytest
 
 from deploy.commands import bench
-from experiments.plans import SETTINGS, build_plans_plan, env_kwargs, main_plans
-from experiments.plans_report import front_gap
+from experiments.plans import (
+    SETTINGS,
+    baseline_of,
+    build_plans_plan,
+    env_kwargs,
+    main_plans,
+    method_config,
+    method_label,
+)
+from experiments.plans_report import front_gap, run_numbers
 from experiments.report import finite_leaves
 
 FIGURES = ("front.png", "latency.png", "h_drift.png")
 STEPS = 150
-SHAPE = {"front_h": (1, 5), "thresholds": (0.8,), "latencies": (0, 2)}
+# TD3 re-planning every 5 steps on cartpole_fast (a BASELINE_SETTINGS member), seeds 0 and 1.
+SHAPE = {
+    "front_h": (1, 5),
+    "thresholds": (0.8,),
+    "latencies": (0, 2),
+    "baseline_methods": ("td3",),
+    "baseline_h": (5,),
+}
 SETTING_KEYS = ["cartpole_slow", "cartpole_fast"]
 
 
@@ -34,7 +50,7 @@ def _fake_paper(root: Path) -> Path:
     return root
 
 
-@pytest.fixture(scope="module")  # 20 runs of 150 steps, one process each
+@pytest.fixture(scope="module")  # 26 runs of 150 steps, one process each
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("plans")
     paper = _fake_paper(tmp_path_factory.mktemp("paper"))
@@ -49,13 +65,19 @@ def test_every_run_is_in_plan_mode_with_its_own_file(tiny: tuple[Path, dict]) ->
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     files = sorted((out / "runs").glob("*.json"))
     # 2 settings x (2 fixed H + 2 AdaptiveH) x 2 seeds, + latency on cartpole_fast: H=10 at L 0 and
-    # H=1, H=10, AdaptiveH 0.8 at L 2, 2 seeds
-    assert len(files) == summary["plan"]["runs_total"] == 16 + 8
+    # H=1, H=10, AdaptiveH 0.8 at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
+    assert len(files) == summary["plan"]["runs_total"] == 16 + 8 + 2
     for path in files:
         run = json.loads(path.read_text())
-        assert run["config"]["execution"] == "plan" and run["global_step"] == STEPS
+        assert run["global_step"] == STEPS and run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
+        if run["algo"] == "td3":  # SB3's loop: no learner latency, an episode's end drops the plan's rest
+            assert run["config"] == {"plan_h": 5} and run["env"] == "cartpole_fast"
+            assert max(run["segments"]["H"]) == 5
+            assert set(run["segments"]["reason"]) <= {"h_max", "episode_end"}
+            assert run["plan_channel"]["latency_steps"] == 0 and run["plan_channel"]["dropped_planned"] >= 0
+            continue
+        assert run["config"]["execution"] == "plan"
         assert run["plan_channel"]["latency_steps"] == run["config"]["latency_steps"]
-        assert run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
         if run["algo"] == "rkhs":
             assert max(run["segments"]["H"]) <= run["config"]["fixed_h"]
             assert "retreat" not in run["segments"]["reason"]
@@ -85,6 +107,18 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
     base = on_disk["settings"]["cartpole_fast"]["baselines"]
     assert base["td3"]["seeds"] == [0] and base["td3"]["final_return"]["mean"] == 100.0
     assert on_disk["settings"]["cartpole_slow"]["baselines"] == {}
+    assert on_disk["settings"]["cartpole_slow"]["plan_baselines"] == {}  # not a baseline setting
+    td3 = on_disk["settings"]["cartpole_fast"]["plan_baselines"]["td3-h5"]
+    assert (td3["n"], td3["H"], td3["algo"], td3["planned_seeds"]) == (2, 5, "td3", [0, 1])
+    assert 20.0 <= td3["replans_per_100"]["mean"] <= 100.0 and td3["H_mean"]["mean"] <= 5
+    assert td3["vs_front"]["outcome"] in ("better", "tie", "worse")
+    assert td3["minus_closed_loop"]["n_b"] == 1  # against the paper bench's closed-loop TD3 (seed 0)
+    for p in on_disk["settings"]["cartpole_fast"]["points"].values():
+        assert p["vs_plan_baselines"]["td3-h5"]["n_b"] == 2
+    assert set(on_disk["verdicts"]["above_plan_baselines"]["comparisons"]) == {
+        "cartpole_fast:adaptiveh-plan0.8:td3-h5",
+        "cartpole_fast:adaptiveh-local:td3-h5",
+    }
     lat = on_disk["latency"]
     assert list(lat) == ["cartpole_fast"]
     for c in lat["cartpole_fast"]["curves"].values():
@@ -103,6 +137,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
     table = (out / "summary.md").read_text()
     assert "above the front" in table or "below the front" in table or "on the front" in table
     assert "nan" not in table and "TD3 (closed loop" in table
+    assert "## Baselines in plan mode" in table and "| TD3, H = 5 (plan mode) |" in table
 
 
 def test_figures_are_real_pngs(tiny: tuple[Path, dict]) -> None:
@@ -146,6 +181,8 @@ def test_finished_runs_are_never_recomputed_and_the_cli_reports_a_partial_plan(
     summary = json.loads((out / "summary.json").read_text())
     assert f"cartpole_fast__rkhs-h50__s1__{STEPS}" in summary["missing_runs"]
     assert summary["settings"]["cartpole_fast"]["front"][-1]["n"] == 0
+    assert f"cartpole_fast__sac-h10__s1__{STEPS}" in summary["missing_runs"]  # a missing baseline: n 0
+    assert summary["settings"]["cartpole_fast"]["plan_baselines"]["sac-h10"]["n"] == 0
     assert finite_leaves(summary) == []
     assert "missing runs" in capsys.readouterr().out
 
@@ -162,15 +199,76 @@ def test_front_gap_interpolates_in_log_rate() -> None:
 
 def test_plan_order_and_shape() -> None:
     plan = build_plans_plan()
-    assert len(plan.runs) == len(set(r.name for r in plan.runs)) == 5 * 5 * 10 + 5 * 2 * 3 * 3
-    order = [(r.seed, bool(r.latency)) for r in plan.runs]
-    # seed by seed; each seed's latency runs right after the next seed's front and points
+    # front + points, latency sweep, and TD3/SAC at H = 10 on cartpole_fast and reach_slow, 3 seeds
+    assert len(plan.runs) == len(set(r.name for r in plan.runs)) == 5 * 5 * 10 + 5 * 2 * 3 * 3 + 3 * 2 * 2
+    kind = {(False, False): "main", (True, False): "latency", (False, True): "baselines"}
+    order = [(r.seed, kind[bool(r.latency), baseline_of(r.method) is not None]) for r in plan.runs]
+    # seed by seed; each seed's latency runs, then its baselines, right after the next seed's front and points
     blocks = [k for i, k in enumerate(order) if i == 0 or order[i - 1] != k]
-    assert blocks == [(0, False), (1, False), (0, True), (2, False), (1, True), (3, False), (2, True),
-                      (4, False), (3, True), (4, True)]  # fmt: skip
+    assert blocks == [(0, "main"), (1, "main"), (0, "latency"), (0, "baselines"), (2, "main"), (1, "latency"),
+                      (1, "baselines"), (3, "main"), (2, "latency"), (2, "baselines"), (4, "main"),
+                      (3, "latency"), (4, "latency")]  # fmt: skip
+    base = [r for r in plan.runs if baseline_of(r.method)]
+    assert plan.baseline_methods == ["td3-h10", "sac-h10"] and plan.baseline_seeds == [0, 1, 2]
+    assert {(r.env, r.algo, r.method) for r in base} == {
+        (k, a, f"{a}-h10") for k in ("cartpole_fast", "reach_slow") for a in ("td3", "sac")
+    }
+    assert all(r.config == {"plan_h": 10} and r.latency == 0 for r in base)  # SB3 defaults, plan mode
+    assert [r for r in plan.runs if r.algo in ("rkhs", "adaptiveh") and "latency_steps" not in r.config] == []
     first = [r.env for r in plan.runs[:50]]
     assert first.index("reach_slow") > max(i for i, e in enumerate(first) if not e.startswith("reach"))
     assert {r.steps for r in plan.runs if r.env.startswith("reach")} == {10_000}
     assert {r.env_kwargs["motion"] for r in plan.runs if r.env == "reach_fast"} == {"fast"}
     with pytest.raises(ValueError, match="unknown setting"):
         build_plans_plan(settings=["nope"])
+    # Baselines only where their settings are planned, at most the experiment's seeds, none on request.
+    small = build_plans_plan(seeds=2, settings=["cartpole_slow", "reach_slow"], baseline_h=(5, 20))
+    assert small.baseline_settings == ["reach_slow"] and small.baseline_seeds == [0, 1]
+    assert sorted(r.method for r in small.runs if baseline_of(r.method)) == sorted(
+        ["td3-h5", "td3-h20", "sac-h5", "sac-h20"] * 2
+    )
+    assert not [r for r in build_plans_plan(baseline_seeds=0).runs if baseline_of(r.method)]
+    with pytest.raises(ValueError, match="plan-mode baseline"):
+        build_plans_plan(baseline_methods=("ppo",))
+    with pytest.raises(ValueError, match="positive integer"):
+        build_plans_plan(baseline_h=(0,))
+
+
+def test_method_names_of_the_baselines_in_plan_mode() -> None:
+    assert method_config("td3-h10") == ("td3", {"plan_h": 10})
+    assert method_config("ddpg-h3") == ("ddpg", {"plan_h": 3})
+    assert method_config("sac-h1") == ("sac", {"plan_h": 1})  # H = 1: SB3's closed loop
+    assert method_config("rkhs-h5") == ("rkhs", {"execution": "plan", "fixed_h": 5})
+    assert method_label("td3-h10") == "TD3, H = 10" and method_label("sac-h1") == "SAC, H = 1 (closed loop)"
+    assert baseline_of("ddpg-h20") == ("ddpg", 20) and baseline_of("rkhs-h20") is None
+    for bad in ("td3-h0", "td3-h", "td3-hx", "td3-h1.5", "td3-h-3", "td3-h010", "sac-h 5", "rkhs-h0"):
+        with pytest.raises(ValueError, match="positive integer"):
+            method_config(bad)
+    for bad in ("ppo-h5", "td3", "td3h5", "a2c-h5", "TD3-h5"):
+        with pytest.raises(ValueError, match="unknown method"):
+            method_config(bad)
+        with pytest.raises(ValueError, match="unknown method"):
+            method_label(bad)
+
+
+def test_a_closed_loop_baseline_run_counts_as_h_1() -> None:
+    """A baseline run at plan_h 1 (SB3's own loop) records no segments: one re-plan per step."""
+    run = {
+        "algo": "td3",
+        "config": {"plan_h": 1},
+        "global_step": 400,
+        "segments": {"global_step": [], "H": [], "reason": []},
+        "plan_channel": None,
+        "metrics": {"final_return": 1.0, "return_mean": 0.5},
+        "wall_s": 2.0,
+    }
+    n = run_numbers(run)
+    assert (n["replans_per_100"], n["H_mean"], n["segments"], n["dropped_planned"]) == (100.0, 1.0, 400, 0)
+    planned = {**run, "config": {"plan_h": 8}, "plan_channel": {"dropped_planned": 6, "latency_steps": 0}}
+    planned["segments"] = {
+        "global_step": [8, 16, 18],
+        "H": [8, 8, 2],
+        "reason": ["h_max", "h_max", "episode_end"],
+    }
+    n = run_numbers(planned)
+    assert (n["replans_per_100"], n["H_mean"], n["dropped_planned"]) == (0.75, 6.0, 6)

@@ -164,5 +164,5 @@ def test_05_a_config_naming_the_wrong_arm_is_refused():
     other = HOST.rsplit(".", 1)[0] + ("." + str(int(HOST.rsplit(".", 1)[1]) % 250 + 1))
     with FrankySimServer(other):  # its own server: robot-io holds the first one's only connection
         cfg = RobotConfig(backend="franka", model="panda", franka=FrankaConfig(ip=other))
-        with pytest.raises(ModelMismatch, match="robot.model is 'panda'.*FR3.*joint limits differ"):
+        with pytest.raises(ModelMismatch, match="robot.model is 'panda'.*FR3.*joint limits are narrower"):
             FrankyBackend(cfg)
