@@ -13,7 +13,8 @@ Writes ``results/stack_bench.json`` and ``results/stack_bench.png``.
 that the robot plays while the learner learns, a retreat preempting the rest), reported next to the
 closed-loop run; ``--latency-ms`` injects that much learner latency into both Zenoh runs (each chunk is
 published that late), so plan mode's last-quarter success is stated next to closed-loop's under the same
-delay. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--execution plan] [--latency-ms 250]``.
+delay. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--execution plan] [--latency-ms 250]
+[--algo rkhs --fixed-h 10]`` (the last two: the fixed-H learner instead of configs/sim.yaml's AdaptiveH).
 """
 
 from __future__ import annotations
@@ -291,11 +292,17 @@ def main() -> int:
     ap.add_argument(
         "--latency-ms", type=float, default=0.0, help="learner latency injected into the Zenoh runs"
     )
+    ap.add_argument("--algo", default=None, help="override learner.algo (e.g. rkhs: fixed-H, no retreat)")
+    ap.add_argument("--fixed-h", type=int, default=None, help="override learner.agent.fixed_h (algo rkhs)")
     args = ap.parse_args()
     os.chdir(ROOT)
     cfg = yaml.safe_load(open(args.config))
     if args.seed is not None:
         cfg["learner"]["seed"] = args.seed
+    if args.algo is not None:
+        cfg["learner"]["algo"] = args.algo
+    if args.fixed_h is not None:
+        cfg["learner"].setdefault("agent", {})["fixed_h"] = args.fixed_h
     lc = cfg["learner"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
