@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,33 +29,18 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from tasks.reach import (  # noqa: E402
+    FACE_VALUE,
     MAX_STEP_M,
     TRACK_GAIN,
     TRACK_STEP_M,
     TRACK_VELOCITY_RATIO,
+    ArmTracking,
     predict_reach,
 )
 from tasks.reach_env import NSReachEnv  # noqa: E402
 
 HORIZONS = (1, 2, 5, 10, 20)
 EPISODE = 50
-
-
-def capped(action: np.ndarray) -> np.ndarray:
-    a = np.clip(np.asarray(action, float), -MAX_STEP_M, MAX_STEP_M)
-    n = float(np.linalg.norm(a))
-    return a * (MAX_STEP_M / n) if n > MAX_STEP_M else a
-
-
-def commanded_model(obs: np.ndarray, action: np.ndarray, dt: float) -> np.ndarray:
-    """The model before: the end effector moves by the (capped) action."""
-    a = capped(action)
-    nxt = np.asarray(obs, float).copy()
-    nxt[0:3] += a
-    nxt[3:6] = a / dt
-    nxt[6:9] = obs[6:9] + obs[9:12] * dt
-    nxt[12:15] = nxt[6:9] - nxt[0:3]
-    return nxt
 
 
 def play(
@@ -75,23 +61,6 @@ def play(
     return out
 
 
-def tracked_model(s: float, g: float, ratio: float):
-    """``predict_reach``'s form with the given constants."""
-
-    def model(obs: np.ndarray, action: np.ndarray, dt: float) -> np.ndarray:
-        a = capped(action)
-        n = float(np.linalg.norm(a))
-        step = a * (s * np.tanh(g * n / s) / n) if n > 0 else a
-        nxt = np.asarray(obs, float).copy()
-        nxt[0:3] += step
-        nxt[3:6] = ratio * step / dt
-        nxt[6:9] = obs[6:9] + obs[9:12] * dt
-        nxt[12:15] = nxt[6:9] - nxt[0:3]
-        return nxt
-
-    return model
-
-
 def fit_tracking(episodes: list[tuple[np.ndarray, np.ndarray]], dt: float) -> dict[str, float]:
     """The velocity ratio by least squares; s and g on a grid, for the least open-loop end-effector error
     over 1-10 steps (what a plan needs, rather than the best single step)."""
@@ -105,7 +74,9 @@ def fit_tracking(episodes: list[tuple[np.ndarray, np.ndarray]], dt: float) -> di
     best = (np.inf, 0.0, 0.0)
     for s in np.arange(0.025, 0.0501, 0.0025):
         for g in np.arange(0.8, 1.001, 0.025):
-            errors = open_loop_errors(episodes, tracked_model(s, g, ratio), dt, horizon=10)
+            errors = open_loop_errors(
+                episodes, partial(predict_reach, tracking=ArmTracking(g, s, ratio)), dt, horizon=10
+            )
             best = min(best, (float(np.mean(list(errors.values()))), s, g))
     _, s, g = best
     return {
@@ -158,7 +129,9 @@ def main() -> int:
             "track_velocity_ratio": TRACK_VELOCITY_RATIO,
         },
         "open_loop_ee_error_mm_by_horizon": {
-            "commanded (moves by the action)": open_loop_errors(test_eps, commanded_model, dt),
+            "commanded (moves by the action)": open_loop_errors(
+                test_eps, partial(predict_reach, tracking=FACE_VALUE), dt
+            ),
             "tracked (predict_reach)": open_loop_errors(test_eps, predict_reach, dt),
         },
         "episodes": {"fit": half, "test": args.episodes - half, "steps_each": EPISODE},

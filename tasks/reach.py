@@ -15,6 +15,8 @@ Reward: minus the distance to the target after the step; success when it is unde
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 SUCCESS_M = 0.05
@@ -75,7 +77,24 @@ TRACK_STEP_M = 0.0275
 TRACK_VELOCITY_RATIO = 0.53
 
 
-def tracked_step(action: np.ndarray, max_step: float = MAX_STEP_M) -> np.ndarray:
+@dataclass(frozen=True)
+class ArmTracking:
+    """How far the end effector gets in a period when told a step: |moved| = step_m * tanh(gain * |step| /
+    step_m) (``step_m`` None: gain * |step|, no saturation), and the velocity it then reports, as
+    ``velocity_ratio`` of the period's mean."""
+
+    gain: float
+    step_m: float | None
+    velocity_ratio: float
+
+
+TRACKING = ArmTracking(TRACK_GAIN, TRACK_STEP_M, TRACK_VELOCITY_RATIO)  # the simulated arm's, measured
+FACE_VALUE = ArmTracking(1.0, None, 1.0)  # the commanded step taken as done (the model before)
+
+
+def tracked_step(
+    action: np.ndarray, max_step: float = MAX_STEP_M, tracking: ArmTracking = TRACKING
+) -> np.ndarray:
     """Where the end effector goes in one period when told ``action``: clipped per axis to the action
     box, capped at ``max_step`` as the robot caps it, then shortened as the arm tracks it (above)."""
     action = np.clip(np.asarray(action, float), -max_step, max_step)
@@ -84,20 +103,28 @@ def tracked_step(action: np.ndarray, max_step: float = MAX_STEP_M) -> np.ndarray
         action, norm = action * (max_step / norm), max_step
     if norm == 0.0:
         return action
-    return action * (TRACK_STEP_M * np.tanh(TRACK_GAIN * norm / TRACK_STEP_M) / norm)
+    if tracking.step_m is None:
+        return tracking.gain * action
+    return action * (tracking.step_m * np.tanh(tracking.gain * norm / tracking.step_m) / norm)
 
 
-def predict_reach(obs: np.ndarray, action: np.ndarray, dt: float, max_step: float = MAX_STEP_M) -> np.ndarray:
+def predict_reach(
+    obs: np.ndarray,
+    action: np.ndarray,
+    dt: float,
+    max_step: float = MAX_STEP_M,
+    tracking: ArmTracking = TRACKING,
+) -> np.ndarray:
     """The reach task's world model, one control period ahead: the end effector moves as the arm tracks
     the action (``tracked_step``; the model once took the commanded step at face value and its 10-step
     predictions were off by ~7 cm, ~3 cm with the tracking, bench/reach_model.py), and the target keeps
     its estimated velocity. It knows nothing of the workspace walls or the target's turns: what a plan
     made from it assumes, and what the retreat checks against."""
     obs = np.asarray(obs, float)
-    step = tracked_step(action, max_step)
+    step = tracked_step(action, max_step, tracking)
     nxt = obs.copy()
     nxt[0:3] = obs[0:3] + step
-    nxt[3:6] = TRACK_VELOCITY_RATIO * step / dt
+    nxt[3:6] = tracking.velocity_ratio * step / dt
     nxt[6:9] = obs[6:9] + obs[9:12] * dt
     nxt[12:15] = nxt[6:9] - nxt[0:3]
     return nxt

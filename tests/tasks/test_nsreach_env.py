@@ -5,7 +5,7 @@ from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_s
 
 import tasks  # noqa: F401  (registers the environments, NS Reach included)
 from sim.panda_scene import TargetMotion
-from tasks.reach import tracked_step
+from tasks.reach import FACE_VALUE, tracked_step
 
 
 @pytest.fixture(scope="module")
@@ -103,8 +103,7 @@ def test_the_plan_model_follows_the_arm_open_loop():
         predicted, pushed = start.astype(float), start[:3].astype(float)
         for action in planned:
             predicted = e.predict_next(predicted, action)
-            step = np.clip(action, -0.05, 0.05)
-            pushed = pushed + step * min(1.0, 0.05 / max(float(np.linalg.norm(step)), 1e-12))
+            pushed = pushed + tracked_step(action, tracking=FACE_VALUE)
         tracked.append(np.linalg.norm(predicted[:3] - obs[:3]))
         face_value.append(np.linalg.norm(pushed - obs[:3]))
     e.close()
