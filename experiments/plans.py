@@ -4,7 +4,8 @@ Every run executes in plan mode (``execution: plan``, ``learner.plans``): a segm
 ``H`` actions over the env's nominal model, played without waiting for the learner. Per setting:
 
 * the **front**: RKHS fixed-H (re-plans every H steps) at H in ``FRONT_H``; H = 1 is the closed loop;
-* the **points**: AdaptiveH with the ``plan`` retreat at each threshold in ``THRESHOLDS`` and with the
+* the **points**: AdaptiveH with the ``plan`` retreat at each threshold in ``THRESHOLDS``, with the
+  ``plan`` retreat's kernel narrowed by each of ``KERNEL_SCALES`` (default threshold), and with the
   ``local`` retreat (its default threshold);
 * the **latency** sweep: fixed H = 1, fixed H = 10 and AdaptiveH (``plan``, 0.8) with a new plan taking
   effect ``latency_steps`` in ``LATENCIES`` steps late, on ``LATENCY_SETTINGS``;
@@ -40,6 +41,10 @@ SETTINGS: dict[str, EnvSpec] = {
 }
 FRONT_H = (1, 2, 5, 10, 20, 50)
 THRESHOLDS = (0.5, 0.8, 0.9)
+# The plan retreat with a narrower kernel between predicted and reached state (``plan_kernel_scale``, on
+# the dimensions where the policy's kernel is narrowest: ``where_narrowest``), at the default threshold: a
+# plan may drift by about this fraction of the policy's kernel width (NS Reach: 0.083 x 30 cm = 2.5 cm).
+KERNEL_SCALES = (0.083, 0.15)
 LATENCIES = (0, 2, 5, 10)
 LATENCY_SETTINGS = ("cartpole_fast", "reach_slow")
 LATENCY_THRESHOLD = 0.8
@@ -63,6 +68,10 @@ def plan_method(threshold: float) -> str:
     return f"adaptiveh-plan{threshold:g}"
 
 
+def scale_method(scale: float) -> str:
+    return f"adaptiveh-k{scale:g}"
+
+
 def baseline_method(algo: str, h: int) -> str:
     return f"{algo}-h{h}"
 
@@ -78,6 +87,16 @@ def _horizon(method: str, prefix: str) -> int:
     return int(text)
 
 
+def where_narrowest(bandwidth: float | list[float] | None, scale: float) -> float | list[float]:
+    """``scale`` on the dimensions where the policy's kernel is narrowest, 1 elsewhere: the coordinates a
+    task turns on (NS Reach: the target relative to the end effector, 0.5 against 5 on the absolute 12);
+    every dimension when the kernel has one width."""
+    if bandwidth is None or not isinstance(bandwidth, list) or len(set(bandwidth)) == 1:
+        return scale
+    narrowest = min(bandwidth)
+    return [scale if b == narrowest else 1.0 for b in bandwidth]
+
+
 def baseline_of(method: str) -> tuple[str, int] | None:
     """(algo, H) of a plan-mode baseline method ``td3-h<H>``, ``ddpg-h<H>``, ``sac-h<H>``; None otherwise."""
     algo, sep, _ = method.partition("-h")
@@ -87,13 +106,17 @@ def baseline_of(method: str) -> tuple[str, int] | None:
 
 
 def method_config(method: str) -> tuple[str, dict[str, Any]]:
-    """(algo, agent overrides) of a method name: ``rkhs-h<H>``, ``adaptiveh-plan<t>``, ``adaptiveh-local``,
-    or a baseline ``td3-h<H>`` / ``ddpg-h<H>`` / ``sac-h<H>`` (``plan_h`` H; H = 1 is its closed loop)."""
+    """(algo, agent overrides) of a method name: ``rkhs-h<H>``, ``adaptiveh-plan<t>``, ``adaptiveh-k<scale>``,
+    ``adaptiveh-local``, or a baseline ``td3-h<H>`` / ``ddpg-h<H>`` / ``sac-h<H>`` (``plan_h`` H; H = 1 is
+    its closed loop)."""
     if method.startswith("rkhs-h"):
         return "rkhs", {"execution": "plan", "fixed_h": _horizon(method, "rkhs-h")}
     if method.startswith("adaptiveh-plan"):
         t = float(method.removeprefix("adaptiveh-plan"))
         return "adaptiveh", {"execution": "plan", "retreat": "plan", "retreat_threshold": t}
+    if method.startswith("adaptiveh-k"):
+        scale = float(method.removeprefix("adaptiveh-k"))
+        return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_kernel_scale": scale}
     if method == LOCAL_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "local", "retreat_threshold": None}
     base = baseline_of(method)
@@ -108,6 +131,8 @@ def method_label(method: str) -> str:
         return "fixed H = 1 (closed loop)" if h == 1 else f"fixed H = {h}"
     if method.startswith("adaptiveh-plan"):
         return f"AdaptiveH, plan retreat {method.removeprefix('adaptiveh-plan')}"
+    if method.startswith("adaptiveh-k"):
+        return f"AdaptiveH, plan retreat, kernel x{method.removeprefix('adaptiveh-k')}"
     if method == LOCAL_METHOD:
         return "AdaptiveH, local retreat"
     base = baseline_of(method)
@@ -177,6 +202,7 @@ def build_plans_plan(
     settings: list[str] | None = None,
     front_h: tuple[int, ...] = FRONT_H,
     thresholds: tuple[float, ...] = THRESHOLDS,
+    kernel_scales: tuple[float, ...] = KERNEL_SCALES,
     latencies: tuple[int, ...] = LATENCIES,
     baseline_methods: tuple[str, ...] = BASELINE_METHODS,
     baseline_h: tuple[int, ...] = BASELINE_H,
@@ -206,7 +232,7 @@ def build_plans_plan(
     if steps is not None and steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
-    points = [plan_method(t) for t in thresholds] + [LOCAL_METHOD]
+    points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales] + [LOCAL_METHOD]
     main = [fixed_method(h) for h in front_h] + points
     lat_settings = [k for k in LATENCY_SETTINGS if k in keys]
     lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD)]
@@ -214,6 +240,8 @@ def build_plans_plan(
     def spec(key: str, method: str, seed: int, latency: int = 0) -> PlanRunSpec:
         algo, overrides = method_config(method)
         cfg = {**agent_config(SETTINGS[key], algo), **overrides}
+        if "plan_kernel_scale" in overrides:
+            cfg["plan_kernel_scale"] = where_narrowest(cfg.get("bandwidth"), overrides["plan_kernel_scale"])
         if algo in ("adaptiveh", "rkhs"):  # the SB3 baselines have no learner latency
             cfg["latency_steps"] = latency
         cfg = {k: v for k, v in cfg.items() if v is not None}

@@ -62,10 +62,12 @@ class AdaptiveH:
             raise ValueError("the RKHS learner needs a continuous (Box) action space")
         self.normalize = StateNormalizer.for_env(env)
         dim = len(self.normalize.centre)
-        n_bw = np.size(cfg.bandwidth)
-        if n_bw not in (1, dim):
-            raise ValueError(f"bandwidth: expected 1 or {dim} values (one per state dimension), got {n_bw}")
+        for key in ("bandwidth", "plan_kernel_scale"):
+            n = np.size(getattr(cfg, key))
+            if n not in (1, dim):
+                raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
         self.kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
+        plan_kernel = GaussianKernel(self.kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
         low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
         self.policy = RKHSGaussianPolicy(
             self.kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
@@ -86,16 +88,17 @@ class AdaptiveH:
         )
         threshold = cfg.retreat_threshold
         if threshold is None:
-            threshold = default_threshold(cfg.retreat, self.kernel, cfg.epsilon)
+            threshold = default_threshold(cfg.retreat_mode, self.kernel, cfg.epsilon)
         self.retreat = RetreatCheck(
             self.kernel,
-            cfg.retreat,
+            cfg.retreat_mode,
             threshold,
             cfg.retreat_smoothing,
             min(cfg.policy_budget, 100),
             cfg.policy_ald,
+            plan_kernel,
         )
-        self.segment_limit = cfg.h_max if cfg.retreat != "off" else cfg.fixed_h
+        self.segment_limit = cfg.h_max if cfg.retreat_mode != "off" else cfg.fixed_h
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
         self.alpha = cfg.alpha  # the step per sample now (alpha_final: scheduled)
         self.rng = np.random.default_rng(seed)

@@ -10,6 +10,7 @@ from common.config import Section
 from learner.retreat import RetreatMode
 
 Positive = Annotated[float, Field(gt=0)]
+Scale = Annotated[float, Field(gt=0, le=1)]
 
 
 class AdaptiveHConfig(Section):
@@ -46,9 +47,17 @@ class AdaptiveHConfig(Section):
     critic_ald: float = Field(0.05, ge=0, lt=1)
     critic_forgetting: float = Field(0.999, gt=0, le=1)
     critic_p0: float = Field(10.0, gt=0)
-    retreat: RetreatMode = "local"
+    # The retreat statistic (learner/retreat.py); None: the execution's own, ``local`` in the closed loop and
+    # ``plan`` in plan execution (measured: ``local`` cannot see a plan go stale; results/plans).
+    retreat: RetreatMode | None = None
     retreat_smoothing: float = Field(0.05, gt=0, le=1)  # λ of the gradient-field average
     retreat_threshold: float | None = None  # None: derived from the paper (see learner/retreat.py)
+    # Read by the plan retreat only: the kernel that compares the state a plan predicted with the one
+    # reached is the policy's with its widths times this. Theorem 1 asks for a kernel narrow enough; the
+    # policy's is as wide as generalisation wants, and a plan can then drift by a task's whole tolerance
+    # unseen (NS Reach: 30 cm wide on the relative coordinates, 5 cm success radius). 1: the same kernel.
+    # One factor, or one per state dimension (e.g. only the relative coordinates of NS Reach).
+    plan_kernel_scale: Scale | list[Scale] = 1.0
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = Field(50, ge=1)
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)
@@ -71,6 +80,13 @@ class AdaptiveHConfig(Section):
     # (learner/plans.py) of up to h_max (AdaptiveH) or fixed_h (RKHS) actions over model-predicted states.
     execution: Literal["closed_loop", "plan"] = "closed_loop"
     latency_steps: int = Field(0, ge=0)  # plan mode in-process: a new plan takes effect this many steps late
+
+    @property
+    def retreat_mode(self) -> str:
+        """``retreat``, or the execution's own when it is None."""
+        if self.retreat is not None:
+            return self.retreat
+        return "plan" if self.execution == "plan" else "local"
 
     @model_validator(mode="after")
     def _options_fit_the_critic(self) -> AdaptiveHConfig:

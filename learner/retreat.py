@@ -35,7 +35,9 @@ Exploration noise averages out; a systematic change of the gradient rotates ``G`
   ``k(ŝ_i,s_i) G(ŝ_i)ᵀG(s_i) / ‖G(ŝ_i)‖²`` against the same threshold. A plan made from a snapshot of
   the world fails it when the world has left the kernel's reach of what the plan assumed, or when the
   ascent directions there disagree; ``local`` compares actual states only and cannot see a plan going
-  stale. Without a plan (closed loop) it never fires.
+  stale. Without a plan (closed loop) it never fires. ``k(ŝ_i,s_i)`` may be narrower than the policy's
+  (``plan_kernel``, the config's ``plan_kernel_scale``): the policy's kernel is as wide as generalisation
+  wants, and a plan can then drift by a task's whole tolerance before the kernel notices.
 All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = Σ_ab k(s_a,s_b) g_aᵀg_b``.
 """
 
@@ -78,12 +80,14 @@ class RetreatCheck:
         smoothing: float = 0.05,
         budget: int = 200,
         ald_threshold: float = 0.05,
+        plan_kernel: GaussianKernel | None = None,
     ):
         if mode not in MODES:
             raise ValueError(f"retreat mode must be one of {MODES}, got {mode!r}")
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"retreat smoothing must be in (0, 1], got {smoothing}")
         self.kernel, self.mode, self.threshold, self.smoothing = kernel, mode, threshold, smoothing
+        self.plan_kernel = plan_kernel or kernel  # compares a plan's predicted state with the reached one
         self.field = RKHSFunction(kernel, 0, budget, ald_threshold)  # out_dim set on first push
         self._snapshot: tuple[np.ndarray, np.ndarray, float] | None = None
         self.states: list[np.ndarray] = []
@@ -167,7 +171,7 @@ class RetreatCheck:
         n = float(dp @ dp)
         if n <= 1e-300:
             return None  # no gradient estimate where the plan went yet
-        return self.kernel.pair(predicted, reached) * float(dp @ dr) / n
+        return self.plan_kernel.pair(predicted, reached) * float(dp @ dr) / n
 
     def state_dict(self) -> dict:
         return {

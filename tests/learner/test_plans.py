@@ -107,3 +107,40 @@ def test_plan_mode_needs_a_world_model():
 
     with pytest.raises(ValueError, match="has no predict_next"):
         make_agent("adaptiveh", NoModel(_cartpole()), 0, {"execution": "plan"})
+
+
+def test_plan_tolerance_sets_how_far_a_plan_may_drift_before_the_retreat():
+    """The same 5 cm-like deviation (0.1 in normalised units) is invisible to a 0.5-wide policy kernel and
+    fails a 0.05-wide plan tolerance; the gradient field is the same in both."""
+    from learner.kernels import GaussianKernel
+    from learner.retreat import RetreatCheck
+
+    wide = GaussianKernel(0.5, 2)
+
+    def statistic(plan_kernel):
+        check = RetreatCheck(wide, "plan", 0.5, smoothing=1.0, plan_kernel=plan_kernel)
+        predicted, reached = np.zeros(2), np.array([0.1, 0.0])
+        fired = check.push(reached, np.array([1.0, 0.0]), predicted, reached)
+        return fired, check.trace[-1]
+
+    fired_wide, stat_wide = statistic(None)
+    fired_narrow, stat_narrow = statistic(GaussianKernel(0.05, 2))
+    assert not fired_wide and fired_narrow
+    # G is one sample at s: G(ŝ) = k(s,ŝ)·g, so G(ŝ)ᵀG(s)/‖G(ŝ)‖² = 1/k(s,ŝ), times the plan kernel's k(ŝ,s)
+    k_wide, k_narrow = np.exp(-0.5 * (0.1 / 0.5) ** 2), np.exp(-0.5 * (0.1 / 0.05) ** 2)
+    assert stat_wide == pytest.approx(1.0, rel=1e-9)
+    assert stat_narrow == pytest.approx(k_narrow / k_wide, rel=1e-9)
+
+
+def test_the_retreat_follows_the_execution_unless_set():
+    closed = make_agent("adaptiveh", _cartpole(), 0, {})
+    planned = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan"})
+    assert (closed.retreat.mode, planned.retreat.mode) == ("local", "plan")
+    pinned = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "retreat": "local"})
+    assert pinned.retreat.mode == "local"
+    narrow = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 0.1})
+    np.testing.assert_allclose(narrow.retreat.plan_kernel.bandwidth, narrow.kernel.bandwidth * 0.1)
+    with pytest.raises(ValueError, match="plan_kernel_scale"):
+        make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 2.0})
+    with pytest.raises(ValueError, match="plan_kernel_scale: expected 1 or 4 values"):
+        make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": [0.1, 0.1]})
