@@ -160,7 +160,8 @@ def run_zenoh(
             [*cli, "learn", "--config", str(path), "--log-level", "WARNING"],
             capture_output=True,
             text=True,
-            timeout=steps / cfg["robot"]["control_rate_hz"] * 4 + 120,
+            # a closed-loop step waits out the latency as well as the control period
+            timeout=steps * (1.0 / cfg["robot"]["control_rate_hz"] + latency_ms / 1000.0) * 4 + 120,
         )
         t1 = time.time()
         if learn.returncode != 0:

@@ -236,6 +236,7 @@ class LearnerNode(Node):
             "chunk_preemptions": self.env.preemptions,
             "dropped_actions": self.env.dropped_total,
             "target_waits": self.env.target_waits,
+            "outage_ticks": self.env.outage_ticks,
             "dropped_planned": self.env.book.dropped_planned,
             "dropped_planned_moving": self.env.book.dropped_moving,
             "suspended_ticks": self.env.suspended_ticks,

@@ -128,7 +128,8 @@ class ZenohReachEnv(gym.Env):
         self._state_count = 0
         self._target: m.Target | None = None
         self._target_lost = False
-        self.target_waits = 0  # outages the closed loop waited out
+        self.target_waits = 0  # target outages waited out
+        self.outage_ticks = 0  # plan mode: robot ticks passed over while the target was lost
         self.chunk_seq = -1  # the last chunk sent
         self.global_step = 0
         self._steps = 0
@@ -451,6 +452,21 @@ class ZenohReachEnv(gym.Env):
                 rest = sent.actions[len(sent.actions) - last.queue_len :]
         return rest[: max(n, 0)].copy()
 
+    def _hold_for_target(self) -> None:
+        """Plan mode, the target lost or stale: a plan made for a target we cannot see must not play on.
+        A one-action plan that stays put preempts it (robot-io's watchdog then holds the arm), plans
+        waiting out the latency are dropped, the learner waits for a fresh fix, and the ticks of the
+        outage are passed over: nothing is learned from them (the next tick closes the segment)."""
+        if self._sender is not None:
+            self._sender.cancel()
+        obs, _, _ = self._observe()
+        stay = np.zeros((1, 3))
+        self._publish_plan((Plan(-1, stay, stay, np.stack([obs, obs])), self.segment, "target_lost"))
+        self._await_target()
+        with self._cond:
+            self.outage_ticks += len(self._ticks)
+            self._ticks.clear()
+
     def _next_tick(self) -> tuple[m.RobotState, m.Target | None]:
         """The oldest tick not yet returned, waiting for it; ticks while suspended are passed over."""
         while True:
@@ -467,6 +483,8 @@ class ZenohReachEnv(gym.Env):
     def advance(self) -> Executed:
         """The robot's next control tick as an executed step (see the module docstring)."""
         self._check_taken_over()
+        if not self._wait(self._target_fresh, 0.0):
+            self._hold_for_target()
         state, target = self._next_tick()
         with self._cond:
             self._last_state = state
