@@ -9,7 +9,7 @@ from typing import Any
 from experiments.figures import _kilo_steps, _save
 from experiments.plans import PlansPlan
 
-POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "tab:purple", "tab:gray", "tab:green", "tab:pink"]
+POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "black", "tab:gray", "tab:green", "tab:pink"]
 BASE_STYLE = {"td3": ("tab:blue", "s"), "ddpg": ("tab:cyan", "D"), "sac": ("tab:olive", "P")}
 
 
