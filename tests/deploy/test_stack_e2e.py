@@ -3,14 +3,15 @@ monitor and AdaptiveH learning NS Reach, all separate processes; then the record
 
 Bar (the issue's): the last quarter's success rate above the first quarter's and at least SUCCESS_BAR,
 its mean final distance below the first quarter's; retreats happen and at least one retreat's chunk
-preempts queued actions on the robot (dropped > 0). Marked slow: `.ci/run` runs it after the default
-run (``pytest -m e2e`` runs it alone). Measured in plan execution (configs/sim.yaml's default since 25aaa49),
+preempts queued actions on the robot (dropped > 0). Marked slow: `.ci/run` runs it after the default run
+(``pytest -m e2e`` runs it alone). Measured in plan execution (configs/sim.yaml's default since 25aaa49),
 10000 steps: distance 0.35 -> 0.033 m, success by quarter 0 / 42 / 90 / 92 %, 1996 retreats of 2158
-segments dropping 89,283 planned actions. In the closed loop (6000 steps): 0.41 -> 0.05 m, 0 / 0 / 3 / 73 %.
-Through the stack, the closed loop's learning took off anywhere from step ~2000 to ~7000 (in-process NS Reach at the
-same seed: by 1000-2000; four soaks on 2 cores: ~3500, ~3500, < 10000, 4850-8360; two 8000-step runs of
-this test in CI never took off, their arm pinned at a workspace wall), so a short run would make the bar a
-coin toss: 10000 steps leave the last quarter (7500-10000) after every take-off we saw.
+segments dropping 89,283 planned actions. In the closed loop (6000 steps): 0.41 -> 0.05 m, 0 / 0 / 3 / 73
+%. Through the stack, the closed loop's learning took off anywhere from step ~2000 to ~7000 (in-process
+NS Reach at the same seed: by 1000-2000; four soaks on 2 cores: ~3500, ~3500, < 10000, 4850-8360; two
+8000-step runs of this test in CI never took off, their arm pinned at a workspace wall), so a short run
+would make the bar a coin toss: 10000 steps leave the last quarter (7500-10000) after every take-off we
+saw.
 """
 
 import json
