@@ -1,6 +1,6 @@
 """Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
 
-Three parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+Four parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 
 1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
    - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
@@ -21,7 +21,9 @@ Three parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 2. ``performance`` (NS Pendulum, ``--seeds`` seeds, not instrumented): final return (mean of the
    episodes in the last 10 % of steps, as in results/paper), steps to -400, wall-clock of ``learn``,
    peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
-3. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of NS Reach's schedules
+   (``REACH_VARIANTS``, on top of configs/reach.yaml) and its difference from the unscheduled learner.
+4. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
    the before-learner's episodes exactly (it should where its settings are the defaults).
@@ -33,7 +35,8 @@ configured now (``AFTER``: the defaults, which keep the options off, plus NS Pen
 keeping them out of the defaults; ``scheduled`` the after-learner with the exploration std and the step
 annealed over the run (``SCHEDULES``).
 
-    python bench/learner_diagnosis.py                       # everything (~16 min on 2 cores)
+    python bench/learner_diagnosis.py                       # everything (~30 min on 2 cores)
+    python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
 Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
 """
@@ -98,6 +101,18 @@ def _variant_config(env_key: str, overrides: dict[str, Any]) -> dict[str, Any]:
 # paper bench first ran it (no schedules, NS Pendulum at sigma 0.3), so the measurements stay comparable.
 FIRST: dict[str, dict[str, Any]] = {"pendulum_slow": {"sigma": 0.3}}
 UNSCHEDULED: dict[str, Any] = {"sigma_final": None, "alpha_final": None}
+
+
+# NS Reach's schedules (part ``reach``), each on top of configs/reach.yaml, which carries ``scheduled``: the
+# exploration std 0.3 -> 0.2 and the step 0.2 -> 0.125 over its 10k steps. The training episodes of the
+# last 10 % are what the bench scores, and at a constant step and std the policy still jitters there.
+REACH_VARIANTS: dict[str, dict[str, Any]] = {
+    "unscheduled": UNSCHEDULED,  # configs/reach.yaml before the schedules
+    "sigma_only": {"alpha_final": None},
+    "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant step at the annealed one's mean
+    "scheduled": {},
+    "step_to_0.02": {"sigma_final": 0.1, "alpha_final": 0.02},  # annealed further: did not help
+}
 
 
 def _overrides(env_key: str, variant: str) -> dict[str, Any]:
@@ -547,6 +562,16 @@ def summarize(out: dict) -> dict:
                 digests.get(r["seed"]) == r["returns_digest"] for r in by["after"]
             )
         summary[env_key] = entry
+    reach = out.get("reach") or []
+    base = [r["final_return"] for r in reach if r["variant"] == "unscheduled"]
+    for variant in REACH_VARIANTS:
+        rs = [r for r in reach if r["variant"] == variant]
+        if not rs:
+            continue
+        entry = {**_group(rs), "per_seed": [round(r["final_return"], 2) for r in rs]}
+        if variant != "unscheduled" and base:
+            entry["minus_unscheduled"] = bootstrap_diff([r["final_return"] for r in rs], base)
+        summary[f"reach_{variant}"] = entry
     probes = out.get("probe") or []
     for variant in ("before", "after"):
         ps = [p for run in probes if run["variant"] == variant for p in run["probes"]]
@@ -581,7 +606,7 @@ def summarize(out: dict) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="probe,performance,checks")
+    p.add_argument("--parts", default="probe,performance,reach,checks")
     p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
     p.add_argument("--check-variants", default="before,after,options")
     p.add_argument("--steps", type=int, default=20_000)
@@ -605,13 +630,14 @@ def main() -> None:
     if a.merge and Path(a.out).is_file():
         old = json.loads(Path(a.out).read_text())
     out: dict[str, Any] = {
-        **{k: old[k] for k in ("probe", "performance", "checks") if k in old},
+        **{k: old[k] for k in ("probe", "performance", "checks", "reach") if k in old},
         "commands": [c for c in old.get("commands", [old.get("command")]) if c]
         + ["python bench/learner_diagnosis.py " + " ".join(sys.argv[1:])],
         "before_overrides": BEFORE,
         "after_overrides": AFTER,
         "options_overrides": OPTIONS,
         "scheduled_overrides": SCHEDULES,
+        "reach_variants": REACH_VARIANTS,
         "started_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
     from experiments.execute import code_version
@@ -633,6 +659,13 @@ def main() -> None:
         ]
         kept = [r for r in old.get("performance", []) if r["variant"] not in variants]  # --merge
         out["performance"] = kept + _pool_map(plain_run, tasks, a.jobs)
+    if "reach" in parts:
+        tasks = [
+            ("reach_slow", v, REACH_VARIANTS[v], s, ENVS["reach_slow"].steps)
+            for v in REACH_VARIANTS
+            for s in range(a.seeds)
+        ]
+        out["reach"] = _pool_map(plain_run, tasks, a.jobs)
     if "checks" in parts:
         envs = [e for e in a.check_envs.split(",") if e]
         cvs = a.check_variants.split(",")
