@@ -106,8 +106,13 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
         with probe.lock:
             late = {t.name: sum(1 for at, _ in got if at > t1 + 1.0) for t, got in flows.items()}
         assert late["state"] > 20 and late["target"] > 5 and late["camera/annotated"] >= 1, late
-        with probe.lock:  # the learner still steps (its progress, signed, every 20 steps)
-            assert [t for at, t in telemetry if at > t1 + 1.0 and authentic(t, key)], "the learner stopped"
+        # The learner still steps (its progress, signed, every 20 steps): within 15 s, not the 2 s window
+        # above, as on a loaded CI machine 20 steps of plan mode can take longer than 2 s.
+        probe.wait(
+            lambda: [t for at, t in telemetry if at > t1 + 1.0 and authentic(t, key)],
+            15.0,
+            "the learner's progress after the fuzzing (it stopped)",
+        )
         with probe.lock:
             mine = [s for s in states if authentic(s, key)]
             signed = {(c.session, c.seq, c.stamp) for c in chunks if authentic(c, key)}
