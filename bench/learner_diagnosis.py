@@ -35,7 +35,7 @@ configured now (``AFTER``: the defaults, which keep the options off, plus NS Pen
 keeping them out of the defaults; ``scheduled`` the after-learner with the exploration std and the step
 annealed over the run (``SCHEDULES``).
 
-    python bench/learner_diagnosis.py                       # everything (~30 min on 2 cores)
+    python bench/learner_diagnosis.py                       # everything (~26 min on 2 cores)
     python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
 Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
@@ -109,7 +109,7 @@ UNSCHEDULED: dict[str, Any] = {"sigma_final": None, "alpha_final": None}
 REACH_VARIANTS: dict[str, dict[str, Any]] = {
     "unscheduled": UNSCHEDULED,  # configs/reach.yaml before the schedules
     "sigma_only": {"alpha_final": None},
-    "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant step at the annealed one's mean
+    "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
     "scheduled": {},
     "step_to_0.02": {"sigma_final": 0.1, "alpha_final": 0.02},  # annealed further: did not help
 }
