@@ -57,6 +57,9 @@ class FrankaConfig(Section):
     # already bounds joint speed by robot.velocity_scale.
     dynamics: tuple[float, float, float] = (1.0, 0.3, 0.3)
     home_dynamics: float = Field(0.15, gt=0, le=1)  # reset's point-to-point move home
+    # mlockall at connect (robot_io/backends/memory_lock.py): no page fault stalls the 1 kHz loop. It needs
+    # CAP_IPC_LOCK or `ulimit -l unlimited`; refused: fatal under realtime: enforce, else a warning.
+    lock_memory: bool = False
     lower_torque_thresholds: Joints = (20.0,) * 7
     upper_torque_thresholds: Joints = (40.0,) * 7
     lower_force_thresholds: Wrench = (10.0,) * 6

@@ -49,6 +49,7 @@ from robot_io.backends.franky_model import (
     server_version_for,
     verify_model,
 )
+from robot_io.backends.memory_lock import MemoryLockError, lock_memory
 from robot_io.backends.protocol import Fault, JointState
 from robot_io.config import RobotConfig
 from robot_io.description import RobotDescription
@@ -129,6 +130,8 @@ class FrankyBackend:
     # -- connection ----------------------------------------------------------------------------------
     def _connect(self) -> None:
         f = self.franky
+        if self.fc.lock_memory:
+            self._lock_memory()
         realtime = f.RealtimeConfig.Enforce if self.fc.realtime == "enforce" else f.RealtimeConfig.Ignore
         before = _scheduling()
         try:
@@ -156,6 +159,15 @@ class FrankyBackend:
         self._last_target = None
         self._stopping = True
         log.info("franky connected to %s (%s): %s", self.fc.ip, self.description.model.name, self.report)
+
+    def _lock_memory(self) -> None:
+        try:
+            lock_memory()
+            log.info("memory locked (mlockall): no page fault stalls the 1 kHz loop")
+        except MemoryLockError:
+            if self.fc.realtime == "enforce":
+                raise
+            log.warning("memory not locked (realtime: ignore, going on)", exc_info=True)
 
     def _set_fault(self, exc: BaseException) -> None:
         """Name what stopped the arm: libfranka's error flags, or a lost connection."""

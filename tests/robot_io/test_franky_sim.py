@@ -62,7 +62,8 @@ def stack(tmp_path_factory):
             "model": "fr3",
             "control_rate_hz": RATE,
             "watchdog_timeout_s": 1.0,
-            "franka": {"ip": HOST, "home_dynamics": 0.5, "simulated_target": True},
+            # lock_memory as on the real arm (a refusal only warns under realtime: ignore)
+            "franka": {"ip": HOST, "home_dynamics": 0.5, "simulated_target": True, "lock_memory": True},
         },
     }
     path = tmp_path_factory.mktemp("franky") / "robot.yaml"
