@@ -274,6 +274,12 @@ def summary_line(elapsed: float, total: float, counts: Counts, server: FrankaSim
     )
 
 
+def vm_locked_kb() -> int:
+    """This process's locked memory (``mlockall`` by franka.lock_memory), from /proc/self/status."""
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmLck:"))
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     print(f"model check against franka-sim's own FR3 URDF ({args.host}) ...", flush=True)
     model_check = model_check_with_franka_sim_urdf(args.host)
@@ -325,6 +331,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 time.sleep(0.2)
             wall = time.monotonic() - t0
             fifo_robot_io = fifo_threads()
+            locked_kb = vm_locked_kb()
             learner.terminate()
             try:
                 learner.wait(timeout=30)
@@ -365,6 +372,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "scheduling": f"franka-sim SCHED_FIFO {args.sim_fifo_priority} (0: SCHED_OTHER); robot-io: "
         f"{len(fifo_robot_io)} SCHED_FIFO threads (priorities {sorted(set(fifo_robot_io))}: franky's 1 kHz "
         "loop), the rest SCHED_OTHER; no PREEMPT_RT kernel here",
+        "memory_locked_kb": locked_kb,  # VmLck of the robot-io process (robot.franka.lock_memory)
         "wall_clock_s": round(wall, 1),
         "reflexes": len(reflexes),
         "reflex_reasons": [{"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes],
