@@ -1,6 +1,6 @@
 """Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
 
-Four parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+Five parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 
 1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
    - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
@@ -23,7 +23,11 @@ Four parts, each a list of runs made in fresh processes (``--jobs`` at a time):
    peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
 3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of NS Reach's schedules
    (``REACH_VARIANTS``, on top of configs/reach.yaml) and its difference from the unscheduled learner.
-4. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+4. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
+   actions: the wall-clock every method's run pays before it learns anything, against TD3's wall-clock
+   per run in ``--paper-summary`` (the issue asks AdaptiveH for 1/10 of TD3's: on a setting whose env
+   alone costs more, no learner can meet it).
+5. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
    the before-learner's episodes exactly (it should where its settings are the defaults).
@@ -503,6 +507,43 @@ def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
     }
 
 
+def env_cost_run(args: tuple[str, int]) -> dict:
+    """One setting's env alone for a run's steps (seeded uniform random actions), timed as ``learn`` is."""
+    from experiments.execute import make_env
+    from experiments.plan import ENVS, env_kwargs
+
+    env_key, seed = args
+    spec = ENVS[env_key]
+    env = make_env(spec, env_kwargs(spec, seed))
+    env.action_space.seed(seed)
+    env.reset(seed=seed)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(spec.steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    env.close()
+    return {"env": env_key, "seed": seed, "steps": spec.steps, "wall_s": wall, "cpu_s": cpu}
+
+
+def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
+    """Per setting: the env's wall-clock per run, TD3's and AdaptiveH's in the paper bench, and the
+    floor, env / TD3: the smallest wall-clock ratio to TD3 that any learner could reach there."""
+    cost = json.loads(paper_summary.read_text())["cost"] if paper_summary.is_file() else {}
+    out: dict[str, Any] = {"paper_summary": str(paper_summary.relative_to(ROOT))}
+    for env_key in dict.fromkeys(r["env"] for r in runs):
+        env_s = float(np.mean([r["wall_s"] for r in runs if r["env"] == env_key]))
+        entry: dict[str, Any] = {"env_only_wall_s_per_run": round(env_s, 2)}
+        for algo in ("td3", "adaptiveh"):
+            wall = cost.get(algo, {}).get("by_env", {}).get(env_key, {}).get("wall_s_per_run")
+            entry[f"{algo}_wall_s_per_run"] = None if wall is None else round(wall, 2)
+        if entry["td3_wall_s_per_run"]:
+            entry["floor_vs_td3"] = round(env_s / entry["td3_wall_s_per_run"], 3)
+        out[env_key] = entry
+    return out
+
+
 def _pool_map(fn, tasks: list, jobs: int) -> list:
     if jobs <= 1:
         return [fn(t) for t in tasks]
@@ -606,7 +647,7 @@ def summarize(out: dict) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="probe,performance,reach,checks")
+    p.add_argument("--parts", default="probe,performance,reach,env_cost,checks")
     p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
     p.add_argument("--check-variants", default="before,after,options")
     p.add_argument("--steps", type=int, default=20_000)
@@ -620,6 +661,7 @@ def main() -> None:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--after", default=None, help="JSON: replace the after-settings of every env (exploring)")
     p.add_argument("--out", default=str(ROOT / "results" / "learner_diagnosis.json"))
+    p.add_argument("--paper-summary", default=str(ROOT / "results" / "paper" / "summary.json"))
     p.add_argument("--merge", action="store_true", help="keep the parts of --out that this call does not run")
     a = p.parse_args()
     if a.after is not None:
@@ -630,7 +672,7 @@ def main() -> None:
     if a.merge and Path(a.out).is_file():
         old = json.loads(Path(a.out).read_text())
     out: dict[str, Any] = {
-        **{k: old[k] for k in ("probe", "performance", "checks", "reach") if k in old},
+        **{k: old[k] for k in ("probe", "performance", "checks", "reach", "env_cost") if k in old},
         "commands": [c for c in old.get("commands", [old.get("command")]) if c]
         + ["python bench/learner_diagnosis.py " + " ".join(sys.argv[1:])],
         "before_overrides": BEFORE,
@@ -666,6 +708,9 @@ def main() -> None:
             for s in range(a.seeds)
         ]
         out["reach"] = _pool_map(plain_run, tasks, a.jobs)
+    if "env_cost" in parts:
+        tasks = [(e, s) for e in ENVS for s in range(a.check_seeds)]
+        out["env_cost"] = _pool_map(env_cost_run, tasks, a.jobs)
     if "checks" in parts:
         envs = [e for e in a.check_envs.split(",") if e]
         cvs = a.check_variants.split(",")
@@ -677,6 +722,8 @@ def main() -> None:
         ]
         out["checks"] = _pool_map(plain_run, tasks, a.jobs)
     out["summary"] = summarize(out)
+    if out.get("env_cost"):
+        out["summary"]["env_cost"] = _env_cost_summary(out["env_cost"], Path(a.paper_summary).resolve())
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(out, indent=1, default=float))
     print(json.dumps(out["summary"], indent=1))
