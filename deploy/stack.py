@@ -71,10 +71,12 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
     needs: list[tuple[str, str]] = []
     if cfg.robot.backend == "franka":  # model, driver, and the arm's version when it answers
         from robot_io.backends.franky_model import probe_arm as probe
+        from robot_io.backends.realtime_host import host_report
 
         arm_ok, arm_lines = probe(cfg.robot.franka.ip, cfg.robot.model, connect=probe_arm)
-        ok &= arm_ok
-        lines += arm_lines
+        host_ok, host_lines = host_report(cfg.robot.franka)
+        ok &= arm_ok and host_ok
+        lines += arm_lines + host_lines
     if cfg.vision is not None and cfg.vision.camera == "realsense":
         needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
     if cfg.zenoh.tls is not None or cfg.zenoh.auth is not None:  # each part's certificate and password

@@ -6,6 +6,8 @@ import sys
 
 import pytest
 
+from robot_io.backends.realtime_host import realtime_kernel
+
 
 def _check(path: str, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run(
@@ -26,6 +28,11 @@ def test_franka_check_names_model_driver_and_missing_drivers():
     assert ("MISSING driver pyrealsense2" in out.stdout) == (importlib.util.find_spec("pyrealsense2") is None)
     assert "nothing was started and nothing moved" in out.stdout
     assert "not contacted (add --probe-arm" in out.stdout  # a plain check never reaches out to the arm
+    # The host, as franka_realsense.yaml (realtime: enforce) needs it: a kernel without PREEMPT_RT fails it
+    assert "host SCHED_FIFO 99 for the 1 kHz loop" in out.stdout
+    assert "host memory locking (franka.lock_memory)" in out.stdout
+    if not realtime_kernel():
+        assert "MISSING host real-time kernel" in out.stdout and out.returncode == 1
 
 
 @pytest.mark.skipif(importlib.util.find_spec("franky_sim") is None, reason="franky-sim is not installed")

@@ -1,0 +1,75 @@
+"""Can this machine run franky's 1 kHz loop as ``robot.franka`` asks? What ``adaptiveh up --check`` reports.
+
+The three things libfranka and robot-io ask of the host: a real-time kernel (libfranka reads
+``/sys/kernel/realtime``; under ``realtime: enforce`` it refuses to move without one), permission to
+raise the loop's thread to SCHED_FIFO 99 (an ``rtprio`` limit of 99, or CAP_SYS_NICE), and, with
+``lock_memory``, permission to lock all of the process's memory (an unlimited ``memlock`` limit, or
+CAP_IPC_LOCK). Under ``enforce`` a missing one is an error the check names; under ``ignore`` a note.
+"""
+
+from __future__ import annotations
+
+import resource
+from pathlib import Path
+
+from robot_io.config import FrankaConfig
+
+CAP_IPC_LOCK, CAP_SYS_NICE = 14, 23  # <linux/capability.h>
+FIFO_PRIORITY = 99  # sched_get_priority_max(SCHED_FIFO): what libfranka asks for
+
+
+def realtime_kernel(flag: Path = Path("/sys/kernel/realtime")) -> bool:
+    """libfranka's own test (``hasRealtimeKernel``): the kernel's realtime flag reads 1."""
+    try:
+        return flag.read_text().strip() == "1"
+    except OSError:
+        return False
+
+
+def _capability(bit: int) -> bool:
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return False
+    effective = next((line.split()[1] for line in status.splitlines() if line.startswith("CapEff:")), "0")
+    return bool(int(effective, 16) >> bit & 1)
+
+
+def fifo_allowed() -> bool:
+    soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+    return soft == resource.RLIM_INFINITY or soft >= FIFO_PRIORITY or _capability(CAP_SYS_NICE)
+
+
+def memlock_allowed() -> bool:
+    return resource.getrlimit(resource.RLIMIT_MEMLOCK)[0] == resource.RLIM_INFINITY or _capability(
+        CAP_IPC_LOCK
+    )
+
+
+def host_report(fc: FrankaConfig) -> tuple[bool, list[str]]:
+    """(ready, lines): each requirement met or not; unmet is an error only under ``realtime: enforce``."""
+    enforce = fc.realtime == "enforce"
+    needs = [
+        ("real-time kernel", realtime_kernel(), "/sys/kernel/realtime reads 1 on a PREEMPT_RT kernel"),
+        (
+            f"SCHED_FIFO {FIFO_PRIORITY} for the 1 kHz loop",
+            fifo_allowed(),
+            "an rtprio 99 limit or CAP_SYS_NICE",
+        ),
+    ]
+    if fc.lock_memory:
+        needs.append(
+            ("memory locking (franka.lock_memory)", memlock_allowed(), "memlock unlimited or CAP_IPC_LOCK")
+        )
+    ok, lines = True, []
+    for what, met, how in needs:
+        if met:
+            lines.append(f"host {what}: yes")
+        elif enforce:
+            ok = False
+            lines.append(f"MISSING host {what}: franka.realtime: enforce will not run without it ({how})")
+        else:
+            lines.append(
+                f"host {what}: no ({how}); franka.realtime: ignore runs without it, cycles may be lost"
+            )
+    return ok, lines
