@@ -24,6 +24,7 @@ results/franka_bench.json.
     bash scripts/franka_sim_venv.sh                 # once
     python bench/franka_sim_stream.py               # 10 minutes (--minutes N)
     python bench/franka_sim_stream.py --quick       # about a minute, to try
+    python bench/franka_sim_stream.py --disturb-s 60 --lock-memory off --key KEY   # a checkout beside it
 """
 
 from __future__ import annotations
@@ -195,6 +196,8 @@ def stack_config(args: argparse.Namespace, tmp: Path) -> Path:
     cfg["name"] = f"fsim{uuid.uuid4().hex[:10]}"
     cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
     cfg["robot"]["franka"]["ip"] = args.host
+    if args.lock_memory != "config":
+        cfg["robot"]["franka"]["lock_memory"] = args.lock_memory == "on"
     cfg["learner"].update(
         steps=int(args.minutes * 60 * rate * 2) + 1000,  # more than the run can take: it is stopped
         checkpoint_dir=str(tmp / "learner"),
@@ -274,6 +277,28 @@ def summary_line(elapsed: float, total: float, counts: Counts, server: FrankaSim
     )
 
 
+class Disturbance(threading.Thread):
+    """Every ``every_s`` seconds, what ended the quiet repeat's one reflex beside it: ``git worktree add``
+    of HEAD into a temporary folder (a checkout: disk writes and both cores busy), then its removal."""
+
+    def __init__(self, every_s: float) -> None:
+        super().__init__(daemon=True)
+        self.every_s = every_s
+        self.stop = threading.Event()
+        self.times: list[tuple[float, float]] = []  # (start, seconds) on the monotonic clock
+
+    def run(self) -> None:
+        while not self.stop.wait(self.every_s):
+            with tempfile.TemporaryDirectory() as d:
+                t = time.monotonic()
+                tree = str(Path(d) / "tree")
+                subprocess.run(
+                    ["git", "worktree", "add", "--detach", tree, "HEAD"], cwd=ROOT, capture_output=True
+                )
+                subprocess.run(["git", "worktree", "remove", "--force", tree], cwd=ROOT, capture_output=True)
+                self.times.append((t, time.monotonic() - t))
+
+
 def vm_locked_kb() -> int:
     """This process's locked memory (``mlockall`` by franka.lock_memory), from /proc/self/status."""
     with open("/proc/self/status") as f:
@@ -316,6 +341,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             )
             t0 = time.monotonic()
             releases = 0
+            disturbance = Disturbance(args.disturb_s) if args.disturb_s > 0 else None
+            if disturbance is not None:
+                disturbance.start()
             next_report = t0 + args.report_s
             while (now := time.monotonic()) - t0 < total:
                 if learner.poll() is not None:
@@ -330,6 +358,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     next_report += args.report_s
                 time.sleep(0.2)
             wall = time.monotonic() - t0
+            if disturbance is not None:
+                disturbance.stop.set()
+                disturbance.join(timeout=120)
             fifo_robot_io = fifo_threads()
             locked_kb = vm_locked_kb()
             learner.terminate()
@@ -359,7 +390,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "command": "python bench/franka_sim_stream.py"
         + (f" --minutes {args.minutes:g}" if args.minutes != 10 else "")
-        + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else ""),
+        + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else "")
+        + (f" --disturb-s {args.disturb_s:g}" if args.disturb_s > 0 else "")
+        + (f" --lock-memory {args.lock_memory}" if args.lock_memory != "config" else ""),
+        "disturbance": None
+        if disturbance is None
+        else {
+            "every_s": args.disturb_s,
+            "what": "git worktree add --detach <tmp> HEAD; git worktree remove --force <tmp>",
+            "at_s": [round(t - t0, 1) for t, _ in disturbance.times],
+            "took_s": [round(d, 1) for _, d in disturbance.times],
+        },
         "simulator": "franka-sim 1.1.7 (MuJoCo 3.2, franky-sim's FR3 MJCF), --enforce-comm-constraints and "
         "--enforce-motion-limits; franky-control 2.0.0 (libfranka 0.21.2)",
         "served_urdf": "franka-sim's own fr3.urdf (accepted by the model check, below)"
@@ -424,6 +465,13 @@ def main() -> int:
         help="run franka-sim SCHED_FIFO at this priority, as the arm is a real-time machine of its own "
         "(0: SCHED_OTHER, sharing the cores with everything else)",
     )
+    ap.add_argument("--disturb-s", type=float, default=0.0, help="a git checkout beside it every this many s")
+    ap.add_argument(
+        "--lock-memory", choices=("config", "on", "off"), default="config", help="override franka.lock_memory"
+    )
+    ap.add_argument(
+        "--key", default="franka_sim_stream", help="the key of results/franka_bench.json to write"
+    )
     args = ap.parse_args()
     if args.quick:
         args.minutes = 1.0
@@ -432,7 +480,7 @@ def main() -> int:
     path = Path(args.out)
     merged = json.loads(path.read_text()) if path.exists() else {}
     merged.pop("franka_sim_streaming", None)  # the old "not run" placeholder
-    merged["franka_sim_stream"] = result
+    merged[args.key] = result
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(merged, indent=2) + "\n")
     r = result
