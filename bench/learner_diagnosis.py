@@ -1,6 +1,6 @@
 """Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
 
-Five parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+Six parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 
 1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
    - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
@@ -23,11 +23,14 @@ Five parts, each a list of runs made in fresh processes (``--jobs`` at a time):
    peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
 3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of NS Reach's schedules
    (``REACH_VARIANTS``, on top of configs/reach.yaml) and its difference from the unscheduled learner.
-4. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
+4. ``noise`` (NS Pendulum as configured, ``--seeds`` seeds): is the gap to TD3 the exploration noise
+   or the policy? After the run, its policy frozen on ``--eval-episodes`` fresh episodes with the same
+   start states each way: the mean action, and actions sampled at its final std and at half of it.
+5. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
    actions: the wall-clock every method's run pays before it learns anything, against TD3's wall-clock
    per run in ``--paper-summary`` (the issue asks AdaptiveH for 1/10 of TD3's: on a setting whose env
    alone costs more, no learner can meet it).
-5. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+6. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
    the before-learner's episodes exactly (it should where its settings are the defaults).
@@ -42,6 +45,7 @@ annealed over the run (``SCHEDULES``).
     python bench/learner_diagnosis.py                       # everything (~26 min on 2 cores)
     python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
+    python bench/learner_diagnosis.py --parts noise,env_cost --merge   # the noise and the env's cost
 Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
 """
 
@@ -507,6 +511,37 @@ def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
     }
 
 
+def noise_run(args: tuple[int, int, int]) -> dict:
+    """The configured NS Pendulum learner, then its frozen policy on paired fresh episodes."""
+    seed, steps, episodes = args
+    cfg = _variant_config("pendulum_slow", {})
+    env, agent = _build("pendulum_slow", seed, cfg)
+    agent.learn(steps)
+    final = [e.ret for e in agent.log.episodes if e.global_step > 0.9 * steps]
+    std = agent.policy.sigma / agent.policy.half_range  # the final exploration std, of the half-range
+    out: dict[str, Any] = {"seed": seed, "steps": steps, "train_final_return": float(np.mean(final))}
+    for label, scale in (("mean_action", None), ("sampled_final_std", 1.0), ("sampled_half_std", 0.5)):
+        if scale is not None:
+            agent.policy.explore(scale * std * agent.policy.half_range)
+        rng = np.random.default_rng(10_000 + seed)
+        returns = []
+        for episode in range(episodes):
+            obs, _ = env.reset(seed=10_000 + episode)  # the same start states for every label
+            total, done = 0.0, False
+            while not done:
+                if scale is None:
+                    action = agent.predict(obs, deterministic=True)
+                else:
+                    action = agent.policy.sample(agent.normalize(obs), rng)[0]
+                obs, reward, terminated, truncated, _ = env.step(action)
+                total, done = total + float(reward), terminated or truncated
+            returns.append(total)
+        out[label] = float(np.mean(returns))
+    out["final_std"] = float(np.mean(std))
+    env.close()
+    return out
+
+
 def env_cost_run(args: tuple[str, int]) -> dict:
     """One setting's env alone for a run's steps (seeded uniform random actions), timed as ``learn`` is."""
     from experiments.execute import make_env
@@ -647,7 +682,8 @@ def summarize(out: dict) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="probe,performance,reach,env_cost,checks")
+    p.add_argument("--parts", default="probe,performance,reach,noise,env_cost,checks")
+    p.add_argument("--eval-episodes", type=int, default=30, help="of the noise part")
     p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
     p.add_argument("--check-variants", default="before,after,options")
     p.add_argument("--steps", type=int, default=20_000)
@@ -672,7 +708,7 @@ def main() -> None:
     if a.merge and Path(a.out).is_file():
         old = json.loads(Path(a.out).read_text())
     out: dict[str, Any] = {
-        **{k: old[k] for k in ("probe", "performance", "checks", "reach", "env_cost") if k in old},
+        **{k: old[k] for k in ("probe", "performance", "checks", "reach", "noise", "env_cost") if k in old},
         "commands": [c for c in old.get("commands", [old.get("command")]) if c]
         + ["python bench/learner_diagnosis.py " + " ".join(sys.argv[1:])],
         "before_overrides": BEFORE,
@@ -708,6 +744,8 @@ def main() -> None:
             for s in range(a.seeds)
         ]
         out["reach"] = _pool_map(plain_run, tasks, a.jobs)
+    if "noise" in parts:
+        out["noise"] = _pool_map(noise_run, [(s, a.steps, a.eval_episodes) for s in range(a.seeds)], a.jobs)
     if "env_cost" in parts:
         tasks = [(e, s) for e in ENVS for s in range(a.check_seeds)]
         out["env_cost"] = _pool_map(env_cost_run, tasks, a.jobs)
@@ -722,6 +760,11 @@ def main() -> None:
         ]
         out["checks"] = _pool_map(plain_run, tasks, a.jobs)
     out["summary"] = summarize(out)
+    if out.get("noise"):
+        keys = ("train_final_return", "mean_action", "sampled_final_std", "sampled_half_std")
+        out["summary"]["pendulum_noise"] = {
+            k: {**_group(out["noise"], k), "per_seed": [round(r[k], 1) for r in out["noise"]]} for k in keys
+        }
     if out.get("env_cost"):
         out["summary"]["env_cost"] = _env_cost_summary(out["env_cost"], Path(a.paper_summary).resolve())
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
