@@ -62,9 +62,9 @@ class AdaptiveH:
             raise ValueError("the RKHS learner needs a continuous (Box) action space")
         self.normalize = StateNormalizer.for_env(env)
         dim = len(self.normalize.centre)
-        for key in ("bandwidth", "plan_kernel_scale"):
+        for key in ("bandwidth", "plan_kernel_scale", "critic_bandwidth"):
             n = np.size(getattr(cfg, key))
-            if n not in (1, dim):
+            if getattr(cfg, key) is not None and n not in (1, dim):
                 raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
         self.kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
         plan_kernel = GaussianKernel(self.kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
@@ -72,8 +72,11 @@ class AdaptiveH:
         self.policy = RKHSGaussianPolicy(
             self.kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
         )
+        critic_kernel = self.kernel
+        if cfg.critic_bandwidth is not None:
+            critic_kernel = GaussianKernel(np.asarray(cfg.critic_bandwidth, float), dim)
         self.critic = KLSTDCritic(
-            self.kernel,
+            critic_kernel,
             cfg.gamma,
             cfg.critic_budget,
             cfg.critic_ald,

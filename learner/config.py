@@ -36,6 +36,9 @@ class AdaptiveHConfig(Section):
     # features. q: kernel LSTD-Q on (state, action) with a product kernel (learner/critic.py).
     critic: Literal["value", "compatible", "q"] = "value"
     action_bandwidth: Positive | list[Positive] = 1.0  # critic q: on actions scaled to [-1, 1]
+    # The critic's state kernel, when its function wants another width than the policy's (a value function
+    # can be sharper than a good policy); None: the policy's ``bandwidth``.
+    critic_bandwidth: Positive | list[Positive] | None = None
     # sampled: eq. 8 per sample, g = c·Â(s,a)·Σ⁻¹(a - h(s)). expected (critic q or compatible): eq. 9's
     # D(s), the action integral done in closed form on Q̂, g = c·D̂(s_t) at each visited state.
     policy_gradient: Literal["sampled", "expected"] = "sampled"

@@ -242,6 +242,7 @@ def test_nan_observation_never_reaches_the_policy_or_the_env():
         ("critic_ald", -0.1),
         ("critic", "td"),
         ("action_bandwidth", 0.0),
+        ("critic_bandwidth", 0.0),
         ("mean_limit", 0.0),
         ("residual_baseline", 1.0),
         ("policy_gradient", "natural"),

@@ -293,3 +293,23 @@ def test_each_option_runs_resumes_and_stays_finite(tmp_path, options):
 def test_option_combinations_that_cannot_work_are_refused(options, match):
     with pytest.raises(ValueError, match=match):
         AdaptiveHConfig(**options)
+
+
+# -- the critic's own kernel width ---------------------------------------------------------------------
+
+
+def test_critic_bandwidth_gives_the_critic_its_own_kernel_and_leaves_the_policys():
+    env = gym.make("NSPendulum-v0", preset="stationary", seed=2)
+    agent = AdaptiveH(env, AdaptiveHConfig(bandwidth=0.35, critic_bandwidth=[0.2, 0.2, 0.1]), 2)
+    np.testing.assert_allclose(agent.critic.state_kernel.bandwidth, [0.2, 0.2, 0.1])
+    np.testing.assert_allclose(agent.kernel.bandwidth, [0.35] * 3)
+    np.testing.assert_allclose(agent.policy.f.dictionary.kernel.bandwidth, [0.35] * 3)
+    agent.learn(600)  # the narrower critic admits more centres from the same states than the policy's width
+    shared = AdaptiveH(
+        gym.make("NSPendulum-v0", preset="stationary", seed=2), AdaptiveHConfig(bandwidth=0.35), 2
+    )
+    shared.learn(600)
+    assert shared.critic.state_kernel is shared.kernel
+    assert len(agent.critic) > len(shared.critic)
+    with pytest.raises(ValueError, match="critic_bandwidth: expected 1 or 3 values"):
+        AdaptiveH(env, AdaptiveHConfig(critic_bandwidth=[0.2, 0.2]), 2)
