@@ -118,8 +118,16 @@ def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:
             if d.get("diff") is None:
                 lines.append(f"{sub}{comp}: missing")
                 continue
-            lines.append(
-                f"{sub}{comp}: {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}], "
-                f"seeds {d['n_a']} vs {d['n_b']} -> {d['outcome']}"
-            )
+            line = f"{sub}{comp}: {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}]"
+            line += f", seeds {d['n_a']} vs {d['n_b']}"
+            p = d.get("paired") or {}
+            if p.get("diff") is not None:
+                paired = f"paired over {p['n_a']} seeds {p['diff']:+.1f} [{p['lo']:+.1f}, {p['hi']:+.1f}]"
+                if "unpaired_outcome" in d:  # the level verdict decides on the paired interval
+                    line += f" -> {d['unpaired_outcome']}; {paired} -> {d['outcome']}"
+                else:
+                    line += f" -> {d['outcome']}; {paired} -> {p['outcome']}"
+            else:
+                line += f" -> {d['outcome']}"
+            lines.append(line)
     return "\n".join(lines)

@@ -113,11 +113,14 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
         assert verdict.split(" (")[0] in ("confirmed", "partly confirmed", "not confirmed")
         for comp in on_disk["verdicts"][claim]["comparisons"].values():
             assert comp["outcome"] in ("better", "tie", "worse")
+            if claim != "h_narrows_when_faster":  # AdaptiveH against a rival: both seeds pair up
+                assert comp["paired"]["n_a"] == 2 and comp["paired"]["outcome"] in ("better", "tie", "worse")
     assert set(on_disk["per_run"]) == {p.stem for p in (out / "runs").glob("*.json")}
     assert sum(on_disk["code_commits"].values()) == len(on_disk["per_run"])  # every run names its commit
     assert "None" not in on_disk["code_commits"]
     level = on_disk["verdicts"]["level_with_best_off_policy"]["comparisons"]
     assert len(level) == len(ENVS) and all(k.split(":")[1] in ("td3", "ddpg", "sac") for k in level)
+    assert all(c["outcome"] == c["paired"]["outcome"] for c in level.values())  # level is decided paired
     table = (out / on_disk["tables"]).read_text()
     # one row per setting in the results table, one in the cost table
     assert table.count("| AdaptiveH |") == len(ENVS) + 1 and "## Verdicts" in table and "nan" not in table
@@ -234,6 +237,20 @@ def test_bootstrap_interval() -> None:
     assert d["diff"] == pytest.approx(9.0) and d["lo"] > 0
     assert stats.outcome(d) == "better" and stats.outcome(d, higher_is_better=False) == "worse"
     assert stats.outcome(stats.bootstrap_diff([1.0, 5.0], [2.0, 4.0])) == "tie"
+
+
+def test_paired_difference_sees_a_deficit_in_every_world_that_the_unpaired_one_calls_a_tie() -> None:
+    """NS Pendulum's shape in results/paper: worlds (seeds) differ by far more than the methods do."""
+    worlds = {0: -180.0, 1: -180.0, 2: -130.0, 3: -200.0, 4: -150.0}
+    ours = {k: v - 40.0 - 5.0 * k for k, v in worlds.items()}
+    unpaired = stats.bootstrap_diff(list(ours.values()), list(worlds.values()))
+    paired = stats.bootstrap_paired_diff(ours, worlds)
+    assert paired["diff"] == pytest.approx(unpaired["diff"]) == pytest.approx(-50.0)
+    assert stats.outcome(unpaired) == "tie" and stats.outcome(paired) == "worse"
+    assert paired["n_a"] == paired["n_b"] == 5
+    # only the seeds both ran pair up; none in common is no data
+    assert stats.bootstrap_paired_diff({0: 1.0, 1: 2.0}, {1: 0.0, 2: 5.0})["n_a"] == 1
+    assert stats.bootstrap_paired_diff({0: 1.0}, {1: 0.0})["diff"] is None
 
 
 def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> None:
