@@ -1,6 +1,6 @@
 """Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
 
-Six parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+Seven parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 
 1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
    - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
@@ -23,14 +23,17 @@ Six parts, each a list of runs made in fresh processes (``--jobs`` at a time):
    peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
 3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of NS Reach's schedules
    (``REACH_VARIANTS``, on top of configs/reach.yaml) and its difference from the unscheduled learner.
-4. ``noise`` (NS Pendulum as configured, ``--seeds`` seeds): is the gap to TD3 the exploration noise
+4. ``pendulum_variants`` (NS Pendulum, ``--seeds`` seeds): the final return of each of
+   ``PENDULUM_VARIANTS`` on top of configs/pendulum.yaml, and its paired difference from the configured
+   learner (the same seed is the same world).
+5. ``noise`` (NS Pendulum as configured, ``--seeds`` seeds): is the gap to TD3 the exploration noise
    or the policy? After the run, its policy frozen on ``--eval-episodes`` fresh episodes with the same
    start states each way: the mean action, and actions sampled at its final std and at half of it.
-5. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
+6. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
    actions: the wall-clock every method's run pays before it learns anything, against TD3's wall-clock
    per run in ``--paper-summary`` (the issue asks AdaptiveH for 1/10 of TD3's: on a setting whose env
    alone costs more, no learner can meet it).
-6. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+7. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
    the before-learner's episodes exactly (it should where its settings are the defaults).
@@ -46,6 +49,7 @@ annealed over the run (``SCHEDULES``).
     python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
     python bench/learner_diagnosis.py --parts noise,env_cost --merge   # the noise and the env's cost
+    python bench/learner_diagnosis.py --parts pendulum_variants --merge   # NS Pendulum's variants
 Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
 """
 
@@ -120,6 +124,21 @@ REACH_VARIANTS: dict[str, dict[str, Any]] = {
     "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
     "scheduled": {},
     "step_to_0.02": {"sigma_final": 0.1, "alpha_final": 0.02},  # annealed further: did not help
+}
+
+
+# NS Pendulum's variants (part ``pendulum_variants``), each on top of configs/pendulum.yaml as configured;
+# none beat it (README, "The learner"). A longer horizon with the step scaled by (1 - γ) so that the
+# actor's α/(1-γ) stays; GAE(λ) advantages; the critic's own, narrower kernel (a value function can be
+# sharper than a policy needs to be).
+PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
+    "configured": {},
+    "gamma_0.98_scaled": {"gamma": 0.98, "alpha": 0.008, "alpha_final": 0.0016},
+    "gamma_0.97_scaled": {"gamma": 0.97, "alpha": 0.012, "alpha_final": 0.0024},
+    "gae_0.5": {"advantage_lambda": 0.5},
+    "critic_bandwidth_0.25": {"critic_bandwidth": 0.25},
+    "critic_bandwidth_0.2": {"critic_bandwidth": 0.2},
+    "critic_bandwidth_0.15": {"critic_bandwidth": 0.15},
 }
 
 
@@ -682,8 +701,9 @@ def summarize(out: dict) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="probe,performance,reach,noise,env_cost,checks")
+    p.add_argument("--parts", default="probe,performance,reach,pendulum_variants,noise,env_cost,checks")
     p.add_argument("--eval-episodes", type=int, default=30, help="of the noise part")
+    p.add_argument("--pendulum-variants", default=",".join(PENDULUM_VARIANTS), help="of pendulum_variants")
     p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
     p.add_argument("--check-variants", default="before,after,options")
     p.add_argument("--steps", type=int, default=20_000)
@@ -708,7 +728,11 @@ def main() -> None:
     if a.merge and Path(a.out).is_file():
         old = json.loads(Path(a.out).read_text())
     out: dict[str, Any] = {
-        **{k: old[k] for k in ("probe", "performance", "checks", "reach", "noise", "env_cost") if k in old},
+        **{
+            k: old[k]
+            for k in ("probe", "performance", "checks", "reach", "noise", "env_cost", "pendulum_variants")
+            if k in old
+        },
         "commands": [c for c in old.get("commands", [old.get("command")]) if c]
         + ["python bench/learner_diagnosis.py " + " ".join(sys.argv[1:])],
         "before_overrides": BEFORE,
@@ -744,6 +768,13 @@ def main() -> None:
             for s in range(a.seeds)
         ]
         out["reach"] = _pool_map(plain_run, tasks, a.jobs)
+    if "pendulum_variants" in parts:
+        names = [v for v in a.pendulum_variants.split(",") if v]
+        tasks = [
+            ("pendulum_slow", v, PENDULUM_VARIANTS[v], s, a.steps) for v in names for s in range(a.seeds)
+        ]
+        kept = [r for r in old.get("pendulum_variants", []) if r["variant"] not in names]  # --merge
+        out["pendulum_variants"] = kept + _pool_map(plain_run, tasks, a.jobs)
     if "noise" in parts:
         out["noise"] = _pool_map(noise_run, [(s, a.steps, a.eval_episodes) for s in range(a.seeds)], a.jobs)
     if "env_cost" in parts:
@@ -760,6 +791,21 @@ def main() -> None:
         ]
         out["checks"] = _pool_map(plain_run, tasks, a.jobs)
     out["summary"] = summarize(out)
+    if out.get("pendulum_variants"):
+        from experiments.stats import bootstrap_paired_diff
+
+        runs = out["pendulum_variants"]
+        base = {r["seed"]: r["final_return"] for r in runs if r["variant"] == "configured"}
+        out["summary"]["pendulum_variants"] = {}
+        for v in dict.fromkeys(r["variant"] for r in runs):
+            rs = [r for r in runs if r["variant"] == v]
+            entry = {**_group(rs), "per_seed": {r["seed"]: round(r["final_return"], 1) for r in rs}}
+            entry["seeds_at_or_above_-250"] = sum(r["final_return"] >= -250 for r in rs)
+            if v != "configured" and base:
+                entry["minus_configured_paired"] = bootstrap_paired_diff(
+                    {r["seed"]: r["final_return"] for r in rs}, base
+                )
+            out["summary"]["pendulum_variants"][v] = entry
     if out.get("noise"):
         keys = ("train_final_return", "mean_action", "sampled_final_std", "sampled_half_std")
         out["summary"]["pendulum_noise"] = {
