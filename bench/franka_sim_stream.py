@@ -278,25 +278,28 @@ def summary_line(elapsed: float, total: float, counts: Counts, server: FrankaSim
 
 
 class Disturbance(threading.Thread):
-    """Every ``every_s`` seconds, what ended the quiet repeat's one reflex beside it: ``git worktree add``
-    of HEAD into a temporary folder (a checkout: disk writes and both cores busy), then its removal."""
+    """Every ``every_s`` seconds, what ran beside the quiet repeat's one reflex: ``git worktree add`` of
+    HEAD into a temporary folder (a checkout: disk writes and both cores busy), then its removal."""
 
     def __init__(self, every_s: float) -> None:
         super().__init__(daemon=True)
         self.every_s = every_s
         self.stop = threading.Event()
         self.times: list[tuple[float, float]] = []  # (start, seconds) on the monotonic clock
+        self.failed: list[str] = []  # a checkout that did not happen is no disturbance
 
     def run(self) -> None:
         while not self.stop.wait(self.every_s):
             with tempfile.TemporaryDirectory() as d:
                 t = time.monotonic()
                 tree = str(Path(d) / "tree")
-                subprocess.run(
-                    ["git", "worktree", "add", "--detach", tree, "HEAD"], cwd=ROOT, capture_output=True
-                )
-                subprocess.run(["git", "worktree", "remove", "--force", tree], cwd=ROOT, capture_output=True)
-                self.times.append((t, time.monotonic() - t))
+                for cmd in (["add", "--detach", tree, "HEAD"], ["remove", "--force", tree]):
+                    done = subprocess.run(["git", "worktree", *cmd], cwd=ROOT, capture_output=True, text=True)
+                    if done.returncode != 0:
+                        self.failed.append(f"git worktree {cmd[0]}: {done.stderr.strip()}")
+                        break
+                else:
+                    self.times.append((t, time.monotonic() - t))
 
 
 def vm_locked_kb() -> int:
@@ -392,7 +395,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         + (f" --minutes {args.minutes:g}" if args.minutes != 10 else "")
         + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else "")
         + (f" --disturb-s {args.disturb_s:g}" if args.disturb_s > 0 else "")
-        + (f" --lock-memory {args.lock_memory}" if args.lock_memory != "config" else ""),
+        + (f" --lock-memory {args.lock_memory}" if args.lock_memory != "config" else "")
+        + (f" --key {args.key}" if args.key != "franka_sim_stream" else ""),
         "disturbance": None
         if disturbance is None
         else {
@@ -400,6 +404,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "what": "git worktree add --detach <tmp> HEAD; git worktree remove --force <tmp>",
             "at_s": [round(t - t0, 1) for t, _ in disturbance.times],
             "took_s": [round(d, 1) for _, d in disturbance.times],
+            "failed": disturbance.failed,
         },
         "simulator": "franka-sim 1.1.7 (MuJoCo 3.2, franky-sim's FR3 MJCF), --enforce-comm-constraints and "
         "--enforce-motion-limits; franky-control 2.0.0 (libfranka 0.21.2)",
@@ -456,7 +461,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="about a minute, to try (same as --minutes 1)")
     ap.add_argument("--config", default="configs/franka_sim.yaml")
     ap.add_argument("--host", default=HOST, help="franka-sim's loopback address")
-    ap.add_argument("--out", default="results/franka_bench.json", help="merged under franka_sim_stream")
+    ap.add_argument("--out", default="results/franka_bench.json", help="merged under --key")
     ap.add_argument("--report-s", type=float, default=15.0, help="progress every this many seconds")
     ap.add_argument(
         "--sim-fifo-priority",
@@ -508,7 +513,7 @@ def main() -> int:
         f"  tracking (end effector, commanded vs measured): {r.get('tracking_ee_error_m')}; "
         f"simulator at x{r.get('sim_realtime_factor')} real time"
     )
-    print(f"merged under franka_sim_stream into {path}")
+    print(f"merged under {args.key} into {path}")
     return 0 if r["reflexes"] == 0 else 1
 
 

@@ -45,7 +45,7 @@ configured now (``AFTER``: the defaults, which keep the options off, plus NS Pen
 keeping them out of the defaults; ``scheduled`` the after-learner with the exploration std and the step
 annealed over the run (``SCHEDULES``).
 
-    python bench/learner_diagnosis.py                       # everything (~26 min on 2 cores)
+    python bench/learner_diagnosis.py                       # everything (~45 min on 2 cores)
     python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
     python bench/learner_diagnosis.py --parts noise,env_cost --merge   # the noise and the env's cost
@@ -248,7 +248,7 @@ def _batch_value(agent, obs: np.ndarray) -> np.ndarray:
     """The value critic's ``V̂`` at a batch of raw observations."""
     s = (obs - agent.normalize.centre) / agent.normalize.scale
     c = agent.critic
-    return agent.kernel(s, c.dictionary.centers) @ c.theta if len(c) else np.zeros(len(obs))
+    return c.state_kernel(s, c.dictionary.centers) @ c.theta if len(c) else np.zeros(len(obs))
 
 
 def gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, n_act, seed) -> dict:
@@ -532,14 +532,25 @@ def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
 
 def noise_run(args: tuple[int, int, int]) -> dict:
     """The configured NS Pendulum learner, then its frozen policy on paired fresh episodes."""
+    from experiments.metrics import run_metrics
+    from experiments.plan import ENVS
+
     seed, steps, episodes = args
     cfg = _variant_config("pendulum_slow", {})
     env, agent = _build("pendulum_slow", seed, cfg)
     agent.learn(steps)
-    final = [e.ret for e in agent.log.episodes if e.global_step > 0.9 * steps]
+    log = agent.log
+    final = run_metrics(
+        [e.global_step for e in log.episodes],
+        [e.ret for e in log.episodes],
+        steps,
+        ENVS["pendulum_slow"].threshold,
+    )["final_return"]
     std = agent.policy.sigma / agent.policy.half_range  # the final exploration std, of the half-range
-    out: dict[str, Any] = {"seed": seed, "steps": steps, "train_final_return": float(np.mean(final))}
+    out: dict[str, Any] = {"seed": seed, "steps": steps, "train_final_return": final}
+    world = env.unwrapped.get_state()  # the noise drifts with every step: each mode starts from this world
     for label, scale in (("mean_action", None), ("sampled_final_std", 1.0), ("sampled_half_std", 0.5)):
+        env.unwrapped.set_state(world)
         if scale is not None:
             agent.policy.explore(scale * std * agent.policy.half_range)
         rng = np.random.default_rng(10_000 + seed)
@@ -585,7 +596,8 @@ def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
     """Per setting: the env's wall-clock per run, TD3's and AdaptiveH's in the paper bench, and the
     floor, env / TD3: the smallest wall-clock ratio to TD3 that any learner could reach there."""
     cost = json.loads(paper_summary.read_text())["cost"] if paper_summary.is_file() else {}
-    out: dict[str, Any] = {"paper_summary": str(paper_summary.relative_to(ROOT))}
+    shown = paper_summary.relative_to(ROOT) if paper_summary.is_relative_to(ROOT) else paper_summary
+    out: dict[str, Any] = {"paper_summary": str(shown)}
     for env_key in dict.fromkeys(r["env"] for r in runs):
         env_s = float(np.mean([r["wall_s"] for r in runs if r["env"] == env_key]))
         entry: dict[str, Any] = {"env_only_wall_s_per_run": round(env_s, 2)}
@@ -740,6 +752,7 @@ def main() -> None:
         "options_overrides": OPTIONS,
         "scheduled_overrides": SCHEDULES,
         "reach_variants": REACH_VARIANTS,
+        "pendulum_variants_overrides": PENDULUM_VARIANTS,
         "started_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
     from experiments.execute import code_version
@@ -799,7 +812,7 @@ def main() -> None:
         out["summary"]["pendulum_variants"] = {}
         for v in dict.fromkeys(r["variant"] for r in runs):
             rs = [r for r in runs if r["variant"] == v]
-            entry = {**_group(rs), "per_seed": {r["seed"]: round(r["final_return"], 1) for r in rs}}
+            entry = {**_group(rs), "per_seed": [round(r["final_return"], 1) for r in rs]}
             entry["seeds_at_or_above_-250"] = sum(r["final_return"] >= -250 for r in rs)
             if v != "configured" and base:
                 entry["minus_configured_paired"] = bootstrap_paired_diff(

@@ -46,14 +46,11 @@ def bootstrap_paired_diff(
 ) -> dict[str, Any]:
     """Mean over the seeds both sides ran of ``a[seed] - b[seed]``, with a 95% bootstrap interval that
     resamples seeds, not sides: a seed fixes the world (its drift, the episodes' start states) for every
-    method, so the per-seed differences are what the methods did differently in the same world."""
-    seeds = sorted(k for k in set(a) & set(b) if a[k] is not None and b[k] is not None)
-    d = np.asarray([a[k] - b[k] for k in seeds], float)
-    if len(d) == 0:
-        return {"diff": None, "lo": None, "hi": None, "n_a": 0, "n_b": 0}
-    rng = np.random.default_rng(seed)
-    lo, hi = np.percentile(d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1), [2.5, 97.5])
-    return {"diff": float(d.mean()), "lo": float(lo), "hi": float(hi), "n_a": len(d), "n_b": len(d)}
+    method, so the per-seed differences are what the methods did differently in the same world.
+    ``n_a`` and ``n_b`` are both the number of pairs (what :func:`outcome` reads)."""
+    pairs = [a[k] - b[k] for k in sorted(set(a) & set(b)) if a[k] is not None and b[k] is not None]
+    m = bootstrap_mean(pairs, n_boot, seed)
+    return {"diff": m["mean"], "lo": m["lo"], "hi": m["hi"], "n_a": m["n"], "n_b": m["n"]}
 
 
 def outcome(d: dict[str, Any], higher_is_better: bool = True) -> str:

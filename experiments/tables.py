@@ -121,13 +121,9 @@ def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:
             line = f"{sub}{comp}: {d['diff']:+.1f} [{d['lo']:+.1f}, {d['hi']:+.1f}]"
             line += f", seeds {d['n_a']} vs {d['n_b']}"
             p = d.get("paired") or {}
+            line += f" -> {d.get('unpaired_outcome', d['outcome'])}"  # the level verdict decides on paired
             if p.get("diff") is not None:
-                paired = f"paired over {p['n_a']} seeds {p['diff']:+.1f} [{p['lo']:+.1f}, {p['hi']:+.1f}]"
-                if "unpaired_outcome" in d:  # the level verdict decides on the paired interval
-                    line += f" -> {d['unpaired_outcome']}; {paired} -> {d['outcome']}"
-                else:
-                    line += f" -> {d['outcome']}; {paired} -> {p['outcome']}"
-            else:
-                line += f" -> {d['outcome']}"
+                line += f"; paired over {p['n_a']} seeds {p['diff']:+.1f} [{p['lo']:+.1f}, {p['hi']:+.1f}]"
+                line += f" -> {p['outcome']}"
             lines.append(line)
     return "\n".join(lines)

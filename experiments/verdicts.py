@@ -68,8 +68,13 @@ def _level_with_best(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, A
             continue
         best = max(have, key=have.__getitem__)
         c = _compare(plan, runs, env, best, "final_return", True)
-        comps[f"{env}:{best}"] = {**c, "unpaired_outcome": c["outcome"], "outcome": c["paired"]["outcome"]}
-        comps[f"{env}:{best}"]["best_of"] = rivals
+        comps[f"{env}:{best}"] = {
+            **c,
+            "unpaired_outcome": c["outcome"],
+            "outcome": c["paired"]["outcome"],
+            "decided_on": "paired",  # diff/lo/hi above are the unpaired figures; paired.* decided
+            "best_of": rivals,
+        }
     known = [c["outcome"] for c in comps.values() if c["outcome"] in ("better", "tie", "worse")]
     level = sum(o != "worse" for o in known)
     if not known:

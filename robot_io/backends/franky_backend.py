@@ -118,6 +118,8 @@ class FrankyBackend:
                 "tasks.sim_world.robot_world(config) as its world"
             )
         self.scene = target if self.fc.simulated_target else None
+        if self.fc.lock_memory:  # once: the lock holds for the process, reconnects included
+            self._lock_memory()
         self.robot: Any = None
         self._loop_scheduling: tuple[int, int] | None = None
         self.report = None
@@ -130,8 +132,6 @@ class FrankyBackend:
     # -- connection ----------------------------------------------------------------------------------
     def _connect(self) -> None:
         f = self.franky
-        if self.fc.lock_memory:
-            self._lock_memory()
         realtime = f.RealtimeConfig.Enforce if self.fc.realtime == "enforce" else f.RealtimeConfig.Ignore
         before = _scheduling()
         try:
@@ -164,10 +164,10 @@ class FrankyBackend:
         try:
             lock_memory()
             log.info("memory locked (mlockall): no page fault stalls the 1 kHz loop")
-        except MemoryLockError:
+        except MemoryLockError as exc:
             if self.fc.realtime == "enforce":
                 raise
-            log.warning("memory not locked (realtime: ignore, going on)", exc_info=True)
+            log.warning("memory not locked (realtime: ignore, going on): %s", exc)
 
     def _set_fault(self, exc: BaseException) -> None:
         """Name what stopped the arm: libfranka's error flags, or a lost connection."""

@@ -12,9 +12,10 @@ from __future__ import annotations
 import resource
 from pathlib import Path
 
+from robot_io.backends.memory_lock import has_capability, memlock_allowed
 from robot_io.config import FrankaConfig
 
-CAP_IPC_LOCK, CAP_SYS_NICE = 14, 23  # <linux/capability.h>
+CAP_SYS_NICE = 23  # <linux/capability.h>
 FIFO_PRIORITY = 99  # sched_get_priority_max(SCHED_FIFO): what libfranka asks for
 
 
@@ -26,24 +27,9 @@ def realtime_kernel(flag: Path = Path("/sys/kernel/realtime")) -> bool:
         return False
 
 
-def _capability(bit: int) -> bool:
-    try:
-        status = Path("/proc/self/status").read_text()
-    except OSError:
-        return False
-    effective = next((line.split()[1] for line in status.splitlines() if line.startswith("CapEff:")), "0")
-    return bool(int(effective, 16) >> bit & 1)
-
-
 def fifo_allowed() -> bool:
     soft = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
-    return soft == resource.RLIM_INFINITY or soft >= FIFO_PRIORITY or _capability(CAP_SYS_NICE)
-
-
-def memlock_allowed() -> bool:
-    return resource.getrlimit(resource.RLIMIT_MEMLOCK)[0] == resource.RLIM_INFINITY or _capability(
-        CAP_IPC_LOCK
-    )
+    return soft == resource.RLIM_INFINITY or soft >= FIFO_PRIORITY or has_capability(CAP_SYS_NICE)
 
 
 def host_report(fc: FrankaConfig) -> tuple[bool, list[str]]:

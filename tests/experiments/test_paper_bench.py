@@ -23,6 +23,7 @@ from experiments.plan import (  # noqa: E402
     ENVS,
     PAPER_ALGOS,
     SPEED_ENVS,
+    Plan,
     RunSpec,
     agent_config,
     build_plan,
@@ -120,7 +121,7 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
     assert "None" not in on_disk["code_commits"]
     level = on_disk["verdicts"]["level_with_best_off_policy"]["comparisons"]
     assert len(level) == len(ENVS) and all(k.split(":")[1] in ("td3", "ddpg", "sac") for k in level)
-    assert all(c["outcome"] == c["paired"]["outcome"] for c in level.values())  # level is decided paired
+    assert all(c["decided_on"] == "paired" for c in level.values())
     table = (out / on_disk["tables"]).read_text()
     # one row per setting in the results table, one in the cost table
     assert table.count("| AdaptiveH |") == len(ENVS) + 1 and "## Verdicts" in table and "nan" not in table
@@ -251,6 +252,27 @@ def test_paired_difference_sees_a_deficit_in_every_world_that_the_unpaired_one_c
     # only the seeds both ran pair up; none in common is no data
     assert stats.bootstrap_paired_diff({0: 1.0, 1: 2.0}, {1: 0.0, 2: 5.0})["n_a"] == 1
     assert stats.bootstrap_paired_diff({0: 1.0}, {1: 0.0})["diff"] is None
+
+
+def test_level_with_the_best_is_decided_on_the_paired_difference() -> None:
+    """A deficit in every world is "worse" (not level) even where the unpaired interval is a tie; the
+    best rival is the one with the highest mean."""
+    from experiments.verdicts import verdicts
+
+    worlds = [-180.0, -110.0, -250.0, -140.0, -210.0]
+    returns = {
+        "adaptiveh": [w - 40.0 - 5.0 * k for k, w in enumerate(worlds)],
+        "sac": worlds,
+        "td3": [w - 3.0 for w in worlds],
+    }
+    specs = [RunSpec("pendulum_slow", a, k, 100) for a in returns for k in range(5)]
+    runs = {r.name: {"seed": r.seed, "metrics": {"final_return": returns[r.algo][r.seed]}} for r in specs}
+    plan = Plan(specs, ["pendulum_slow"], list(returns), list(range(5)), {"pendulum_slow": 100}, False)
+    level = verdicts(plan, runs, {})["level_with_best_off_policy"]
+    comp = level["comparisons"]["pendulum_slow:sac"]
+    assert comp["unpaired_outcome"] == "tie" and comp["paired"]["outcome"] == "worse"
+    assert comp["outcome"] == "worse" and comp["decided_on"] == "paired"
+    assert level["verdict"].startswith("not confirmed")
 
 
 def test_plan_orders_cheap_runs_first_then_seed_major_with_equal_budgets() -> None:

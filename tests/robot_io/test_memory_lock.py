@@ -42,8 +42,8 @@ def _python(code: str, *args: str, refused: bool = False) -> subprocess.Complete
 
 @pytest.fixture
 def can_refuse():
-    if not (shutil.which("prlimit") and shutil.which("setpriv")):
-        pytest.skip("util-linux's prlimit and setpriv are needed to make the OS refuse")
+    if not shutil.which("prlimit") or (os.geteuid() == 0 and not shutil.which("setpriv")):
+        pytest.skip("util-linux's prlimit (and setpriv, as root) are needed to make the OS refuse")
     probe = subprocess.run([*_refusing(), "true"], capture_output=True, text=True)
     if probe.returncode != 0:
         pytest.skip(f"this machine will not run a process without the memlock allowance: {probe.stderr}")
@@ -51,7 +51,7 @@ def can_refuse():
 
 def test_locking_pins_the_process_memory():
     out = _python(LOCK + STATUS)
-    if out.returncode != 0 and "mlockall failed" in out.stderr and os.geteuid() != 0:
+    if out.returncode != 0 and "MemoryLockError" in out.stderr and os.geteuid() != 0:
         pytest.skip(f"this user may not lock memory: {out.stderr.strip().splitlines()[-1]}")
     assert out.returncode == 0, out.stderr
     assert int(out.stdout.strip()) > 1000  # kB locked: the interpreter's pages at least
@@ -60,8 +60,10 @@ def test_locking_pins_the_process_memory():
 def test_a_refusal_names_the_key_and_the_fix(can_refuse):
     out = _python(LOCK, refused=True)
     assert out.returncode != 0
-    assert "MemoryLockError: robot.franka.lock_memory: mlockall failed" in out.stderr
-    assert "ulimit -l unlimited" in out.stderr
+    assert (
+        "MemoryLockError: robot.franka.lock_memory: the memlock limit is 0 KiB, not unlimited" in out.stderr
+    )
+    assert "lacks CAP_IPC_LOCK" in out.stderr and "ulimit -l unlimited" in out.stderr
 
 
 def test_the_backend_refuses_to_run_unlocked_under_realtime_enforce(can_refuse):
@@ -74,7 +76,6 @@ def test_the_backend_refuses_to_run_unlocked_under_realtime_enforce(can_refuse):
 def test_the_backend_warns_and_goes_on_under_realtime_ignore(can_refuse):
     pytest.importorskip("franky")
     out = _python(BACKEND, "ignore", refused=True)
-    assert "memory not locked (realtime: ignore, going on)" in out.stdout
+    assert "memory not locked (realtime: ignore, going on): robot.franka.lock_memory:" in out.stdout
     # It went on to connect: nothing serves 127.0.0.1's FCI, so it is the connection that fails.
-    assert out.returncode != 0 and "MemoryLockError" not in out.stderr.split("memory not locked")[-1]
-    assert "NetworkException" in out.stderr
+    assert out.returncode != 0 and "MemoryLockError" not in out.stderr and "NetworkException" in out.stderr

@@ -27,17 +27,19 @@ print(ok); print("\\n".join(lines))
 
 def _report_without(realtime: str, limit: str, capability: str) -> tuple[bool, str]:
     """host_report in a process with ``limit`` at 0 and (as root) without ``capability``."""
-    if not (shutil.which("prlimit") and shutil.which("setpriv")):
-        pytest.skip("util-linux's prlimit and setpriv are needed")
+    if not shutil.which("prlimit") or (os.geteuid() == 0 and not shutil.which("setpriv")):
+        pytest.skip("util-linux's prlimit (and setpriv, as root) are needed")
     drop = (
         ["setpriv", f"--inh-caps=-{capability}", f"--bounding-set=-{capability}"] if os.geteuid() == 0 else []
     )
-    cmd = ["prlimit", f"--{limit}=0", *drop, sys.executable, "-c", REPORT, realtime]
-    out = subprocess.run(
-        cmd, capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)}
-    )
-    if out.returncode != 0:
-        pytest.skip(f"this machine will not run a process with {limit} 0: {out.stderr}")
+    prefix = ["prlimit", f"--{limit}=0", *drop]
+    probe = subprocess.run([*prefix, "true"], capture_output=True, text=True, timeout=60)
+    if probe.returncode != 0:
+        pytest.skip(f"this machine will not run a process with {limit} 0: {probe.stderr}")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [*prefix, sys.executable, "-c", REPORT, realtime]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env)
+    assert out.returncode == 0, out.stderr  # host_report itself must not fail
     first, _, rest = out.stdout.partition("\n")
     return first == "True", rest
 
