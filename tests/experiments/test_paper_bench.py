@@ -266,7 +266,10 @@ def test_level_with_the_best_is_decided_on_the_paired_difference() -> None:
         "td3": [w - 3.0 for w in worlds],
     }
     specs = [RunSpec("pendulum_slow", a, k, 100) for a in returns for k in range(5)]
-    runs = {r.name: {"seed": r.seed, "metrics": {"final_return": returns[r.algo][r.seed]}} for r in specs}
+    metrics = ("final_return", "return_mean", "steps_to_threshold")  # every claim reads one of these
+    runs = {
+        r.name: {"seed": r.seed, "metrics": dict.fromkeys(metrics, returns[r.algo][r.seed])} for r in specs
+    }
     plan = Plan(specs, ["pendulum_slow"], list(returns), list(range(5)), {"pendulum_slow": 100}, False)
     level = verdicts(plan, runs, {})["level_with_best_off_policy"]
     comp = level["comparisons"]["pendulum_slow:sac"]
