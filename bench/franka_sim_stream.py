@@ -49,6 +49,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from common.proc_status import status_field  # noqa: E402
 from deploy.config import load_stack_config  # noqa: E402
 from deploy.robot_io_node import RobotIONode  # noqa: E402
 from robot_io.backends.franky_model import ModelMismatch  # noqa: E402
@@ -304,8 +305,7 @@ class Disturbance(threading.Thread):
 
 def vm_locked_kb() -> int:
     """This process's locked memory (``mlockall`` by franka.lock_memory), from /proc/self/status."""
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmLck:"))
+    return int(status_field("VmLck") or 0)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

@@ -154,11 +154,10 @@ def _overrides(env_key: str, variant: str) -> dict[str, Any]:
 
 
 def _rss_mb() -> float:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
+    from common.proc_status import status_field
+
+    rss = status_field("VmRSS")
+    return int(rss) / 1024.0 if rss is not None else float("nan")
 
 
 def _build(env_key: str, seed: int, cfg: dict[str, Any]):
@@ -628,7 +627,25 @@ def _group(runs: list[dict], key: str = "final_return") -> dict:
     return bootstrap_mean([r[key] for r in runs])
 
 
-def summarize(out: dict) -> dict:
+def _pendulum_variants_summary(runs: list[dict]) -> dict:
+    """Each variant's final return, and its paired difference from the configured learner."""
+    from experiments.stats import bootstrap_paired_diff
+
+    base = {r["seed"]: r["final_return"] for r in runs if r["variant"] == "configured"}
+    out = {}
+    for v in dict.fromkeys(r["variant"] for r in runs):
+        rs = [r for r in runs if r["variant"] == v]
+        entry = {**_group(rs), "per_seed": [round(r["final_return"], 1) for r in rs]}
+        entry["seeds_at_or_above_-250"] = sum(r["final_return"] >= -250 for r in rs)
+        if v != "configured" and base:
+            entry["minus_configured_paired"] = bootstrap_paired_diff(
+                {r["seed"]: r["final_return"] for r in rs}, base
+            )
+        out[v] = entry
+    return out
+
+
+def summarize(out: dict, paper_summary: Path) -> dict:
     from experiments.stats import bootstrap_diff
 
     summary: dict[str, Any] = {}
@@ -708,6 +725,15 @@ def summarize(out: dict) -> dict:
         summary[f"probe_{variant}"]["critic_explained_variance_vs_mc"] = (
             float(np.mean([b["explained_variance"] for b in mc])) if mc else None
         )
+    if out.get("pendulum_variants"):
+        summary["pendulum_variants"] = _pendulum_variants_summary(out["pendulum_variants"])
+    if out.get("noise"):
+        keys = ("train_final_return", "mean_action", "sampled_final_std", "sampled_half_std")
+        summary["pendulum_noise"] = {
+            k: {**_group(out["noise"], k), "per_seed": [round(r[k], 1) for r in out["noise"]]} for k in keys
+        }
+    if out.get("env_cost"):
+        summary["env_cost"] = _env_cost_summary(out["env_cost"], paper_summary)
     return summary
 
 
@@ -803,29 +829,7 @@ def main() -> None:
             for s in range(a.check_seeds)
         ]
         out["checks"] = _pool_map(plain_run, tasks, a.jobs)
-    out["summary"] = summarize(out)
-    if out.get("pendulum_variants"):
-        from experiments.stats import bootstrap_paired_diff
-
-        runs = out["pendulum_variants"]
-        base = {r["seed"]: r["final_return"] for r in runs if r["variant"] == "configured"}
-        out["summary"]["pendulum_variants"] = {}
-        for v in dict.fromkeys(r["variant"] for r in runs):
-            rs = [r for r in runs if r["variant"] == v]
-            entry = {**_group(rs), "per_seed": [round(r["final_return"], 1) for r in rs]}
-            entry["seeds_at_or_above_-250"] = sum(r["final_return"] >= -250 for r in rs)
-            if v != "configured" and base:
-                entry["minus_configured_paired"] = bootstrap_paired_diff(
-                    {r["seed"]: r["final_return"] for r in rs}, base
-                )
-            out["summary"]["pendulum_variants"][v] = entry
-    if out.get("noise"):
-        keys = ("train_final_return", "mean_action", "sampled_final_std", "sampled_half_std")
-        out["summary"]["pendulum_noise"] = {
-            k: {**_group(out["noise"], k), "per_seed": [round(r[k], 1) for r in out["noise"]]} for k in keys
-        }
-    if out.get("env_cost"):
-        out["summary"]["env_cost"] = _env_cost_summary(out["env_cost"], Path(a.paper_summary).resolve())
+    out["summary"] = summarize(out, Path(a.paper_summary).resolve())
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(out, indent=1, default=float))
     print(json.dumps(out["summary"], indent=1))

@@ -17,6 +17,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from common.proc_status import status_field
 from experiments.metrics import run_metrics
 from experiments.plan import EnvSpec, RunSpec
 
@@ -60,13 +61,8 @@ def peak_rss_kib() -> float:
     ``exec`` over into it, so a run started from a large parent (a Ray worker, ~100 MB) would report
     at least the parent's size. ``ru_maxrss`` (KiB on Linux) elsewhere.
     """
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return float(line.split()[1])
-    except OSError:
-        pass
-    return float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+    hwm = status_field("VmHWM")
+    return float(hwm) if hwm is not None else float(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 
 
 def execute_run(spec: RunSpec, out_dir: str) -> dict[str, Any]:

@@ -8,12 +8,12 @@ from experiments.plan import Plan
 from experiments.stats import bootstrap_diff, bootstrap_paired_diff, outcome
 
 
-def _vals(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key: str) -> list[float]:
-    return [g["metrics"][key] for g in plan.finished(runs, env, algo)]
-
-
 def _by_seed(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key: str) -> dict[int, float]:
     return {g["seed"]: g["metrics"][key] for g in plan.finished(runs, env, algo)}
+
+
+def _vals(plan: Plan, runs: dict[str, dict[str, Any]], env: str, algo: str, key: str) -> list[float]:
+    return list(_by_seed(plan, runs, env, algo, key).values())
 
 
 def _compare(

@@ -11,7 +11,8 @@ import ctypes
 import errno
 import os
 import resource
-from pathlib import Path
+
+from common.proc_status import status_field
 
 MCL_CURRENT = 1  # <sys/mman.h>: the pages mapped now
 MCL_FUTURE = 2  # and every page mapped from now on (new heaps, thread stacks)
@@ -28,12 +29,7 @@ class MemoryLockError(RuntimeError):
 
 def has_capability(bit: int) -> bool:
     """Whether this process's effective capability set holds ``bit`` (<linux/capability.h>)."""
-    try:
-        status = Path("/proc/self/status").read_text()
-    except OSError:
-        return False
-    effective = next((line.split()[1] for line in status.splitlines() if line.startswith("CapEff:")), "0")
-    return bool(int(effective, 16) >> bit & 1)
+    return bool(int(status_field("CapEff") or "0", 16) >> bit & 1)
 
 
 def memlock_allowed() -> bool:
