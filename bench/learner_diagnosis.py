@@ -1,6 +1,6 @@
 """Why AdaptiveH loses on NS Pendulum, measured, before and after the learner changes (issue #15).
 
-Seven parts, each a list of runs made in fresh processes (``--jobs`` at a time):
+Eight parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 
 1. ``probe`` (NS Pendulum, ``--probe-seeds`` seeds, instrumented): along the learner's own run,
    - the critic against Monte-Carlo returns: explained variance and correlation of ``V̂(s_t)`` (read
@@ -21,19 +21,23 @@ Seven parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 2. ``performance`` (NS Pendulum, ``--seeds`` seeds, not instrumented): final return (mean of the
    episodes in the last 10 % of steps, as in results/paper), steps to -400, wall-clock of ``learn``,
    peak RSS and the RSS at 25/50/100 % of the steps (flat memory).
-3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of NS Reach's schedules
-   (``REACH_VARIANTS``, on top of configs/reach.yaml) and its difference from the unscheduled learner.
-4. ``pendulum_variants`` (NS Pendulum, ``--seeds`` seeds): the final return of each of
+3. ``reach`` (NS Reach, ``--seeds`` seeds): the final return of each of ``--reach-variants``
+   (``REACH_VARIANTS``, on top of configs/reach.yaml), its difference from the unscheduled learner, and
+   paired per seed from the scheduled learner and from TD3's runs in ``--paper-summary``.
+4. ``reach_baselines`` (NS Reach, ``--seeds`` seeds): TD3 with each of ``--reach-baselines``
+   (``REACH_BASELINE_VARIANTS``: its exploration noise on the grid NS Reach's std was tuned on), paired
+   per seed against the paper bench's TD3 and AdaptiveH: what the same tuning does for the baseline.
+5. ``pendulum_variants`` (NS Pendulum, ``--seeds`` seeds): the final return of each of
    ``PENDULUM_VARIANTS`` on top of configs/pendulum.yaml, and its paired difference from the configured
    learner (the same seed is the same world).
-5. ``noise`` (NS Pendulum as configured, ``--seeds`` seeds): is the gap to TD3 the exploration noise
+6. ``noise`` (NS Pendulum as configured, ``--seeds`` seeds): is the gap to TD3 the exploration noise
    or the policy? After the run, its policy frozen on ``--eval-episodes`` fresh episodes with the same
    start states each way: the mean action, and actions sampled at its final std and at half of it.
-6. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
+7. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
    actions: the wall-clock every method's run pays before it learns anything, against TD3's wall-clock
    per run in ``--paper-summary`` (the issue asks AdaptiveH for 1/10 of TD3's: on a setting whose env
    alone costs more, no learner can meet it).
-7. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
+8. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
    the before-learner's episodes exactly (it should where its settings are the defaults).
@@ -45,8 +49,9 @@ configured now (``AFTER``: the defaults, which keep the options off, plus NS Pen
 keeping them out of the defaults; ``scheduled`` the after-learner with the exploration std and the step
 annealed over the run (``SCHEDULES``).
 
-    python bench/learner_diagnosis.py                       # everything (~45 min on 2 cores)
-    python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's schedules only
+    python bench/learner_diagnosis.py                       # everything (~90 min on 2 cores)
+    python bench/learner_diagnosis.py --parts reach --jobs 1 --merge   # NS Reach's variants only
+    python bench/learner_diagnosis.py --parts reach_baselines --merge  # TD3's noise on NS Reach (~15 min)
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
     python bench/learner_diagnosis.py --parts noise,env_cost --merge   # the noise and the env's cost
     python bench/learner_diagnosis.py --parts pendulum_variants --merge   # NS Pendulum's variants
@@ -115,15 +120,59 @@ FIRST: dict[str, dict[str, Any]] = {"pendulum_slow": {"sigma": 0.3}}
 UNSCHEDULED: dict[str, Any] = {"sigma_final": None, "alpha_final": None}
 
 
-# NS Reach's schedules (part ``reach``), each on top of configs/reach.yaml, which carries ``scheduled``: the
-# exploration std 0.3 -> 0.2 and the step 0.2 -> 0.125 over its 10k steps. The training episodes of the
-# last 10 % are what the bench scores, and at a constant step and std the policy still jitters there.
+# NS Reach's variants (part ``reach``), each on top of configs/reach.yaml's agent section with its
+# schedules spelled out, so a variant means the same whatever the config anneals to. The training
+# episodes of the last 10 % are what the bench scores: at a constant step and std the policy still jitters
+# there, and the exploration noise itself costs distance (an oracle that steps straight at the target
+# loses ~0.23 of return per 0.5 cm of action noise).
 REACH_VARIANTS: dict[str, dict[str, Any]] = {
     "unscheduled": UNSCHEDULED,  # configs/reach.yaml before the schedules
-    "sigma_only": {"alpha_final": None},
+    "sigma_only": {"sigma_final": 0.2, "alpha_final": None},
     "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
-    "scheduled": {},
+    "scheduled": {"sigma_final": 0.2, "alpha_final": 0.125},  # the schedules first adopted
     "step_to_0.02": {"sigma_final": 0.1, "alpha_final": 0.02},  # annealed further: did not help
+    # The std annealed to the baselines' exploration noise (0.1 of the half-range), the step as scheduled
+    "std_to_0.1": {"sigma_final": 0.1, "alpha_final": 0.125},
+    "std_to_0.05": {"sigma_final": 0.05, "alpha_final": 0.125},
+    "std_to_0.1_step_0.25": {"sigma_final": 0.1, "alpha_final": 0.25},
+    # with the std to 0.1: the policy kernel's width on the relative target coordinates (0.5 configured)
+    "std_to_0.1_relative_bw_0.3": {
+        "sigma_final": 0.1,
+        "alpha_final": 0.125,
+        "bandwidth": [5.0] * 12 + [0.3] * 3,
+    },
+    "std_to_0.1_relative_bw_0.2": {
+        "sigma_final": 0.1,
+        "alpha_final": 0.125,
+        "bandwidth": [5.0] * 12 + [0.2] * 3,
+    },
+    "std_to_0.1_relative_bw_1": {
+        "sigma_final": 0.1,
+        "alpha_final": 0.125,
+        "bandwidth": [5.0] * 12 + [1.0] * 3,
+    },
+    "std_to_0.1_q_critic": {
+        "sigma_final": 0.1,
+        "alpha_final": 0.125,
+        "critic": "q",
+        "policy_gradient": "expected",
+    },
+    "std_to_0.1_residual": {
+        "sigma_final": 0.1,
+        "alpha_final": 0.125,
+        "residual_baseline": 0.999,
+        "residual_fit": "least_squares",
+    },
+}
+
+
+# The same lever for the baseline (part ``reach_baselines``): TD3's exploration noise on NS Reach, on the
+# grid NS Reach's std got (0.2 / 0.1 / 0.05 of the half-range there; 0.1 is the zoo's, the paper bench's
+# TD3, which ``td3_noise_0.1`` replays seed for seed).
+REACH_BASELINE_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "td3_noise_0.1": ("td3", {}),
+    "td3_noise_0.05": ("td3", {"noise_std": 0.05}),
+    "td3_noise_0.2": ("td3", {"noise_std": 0.2}),
 }
 
 
@@ -160,13 +209,13 @@ def _rss_mb() -> float:
     return int(rss) / 1024.0 if rss is not None else float("nan")
 
 
-def _build(env_key: str, seed: int, cfg: dict[str, Any]):
+def _build(env_key: str, seed: int, cfg: dict[str, Any], algo: str = "adaptiveh"):
     from experiments.execute import make_env
     from experiments.plan import ENVS, env_kwargs
     from learner.registry import make_agent
 
     env = make_env(ENVS[env_key], env_kwargs(ENVS[env_key], seed))
-    return env, make_agent("adaptiveh", env, seed, cfg)
+    return env, make_agent(algo, env, seed, cfg)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -485,15 +534,22 @@ def _critic_vs_mc(rec: dict, gamma: float, every: int, steps: int) -> list[dict]
 # ---------------------------------------------------------------------------------------------------
 
 
-def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
+def plain_run(args: tuple) -> dict:
+    """One run of AdaptiveH (or, with a sixth element, of that algorithm on its paper-bench config plus
+    the overrides) as the paper bench runs it, uninstrumented."""
     from experiments.metrics import run_metrics
-    from experiments.plan import ENVS
+    from experiments.plan import ENVS, agent_config
 
-    env_key, variant, overrides, seed, steps = args
-    cfg = _variant_config(env_key, overrides)
-    env, agent = _build(env_key, seed, cfg)
+    env_key, variant, overrides, seed, steps, *rest = args
+    algo = rest[0] if rest else "adaptiveh"
+    if algo == "adaptiveh":
+        cfg = _variant_config(env_key, overrides)
+    else:
+        cfg = {**agent_config(ENVS[env_key], algo), **overrides}
+    env, agent = _build(env_key, seed, cfg, algo)
     rss, wall, cpu = {}, 0.0, 0.0
-    marks = sorted({steps // 4, steps // 2, steps})
+    # a baseline learns in one call, as in the paper bench (SB3 trains a cut rollout at each call's end)
+    marks = sorted({steps // 4, steps // 2, steps}) if algo == "adaptiveh" else [steps]
     done = 0
     for m in marks:
         t0, c0 = time.perf_counter(), time.process_time()
@@ -524,7 +580,10 @@ def plain_run(args: tuple[str, str, dict, int, int]) -> dict:
         "steps_per_s": steps / wall,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "rss_mb_at_step": rss,
-        "dictionary": {"policy": len(agent.policy.f), "critic": len(agent.critic)},
+        "algo": algo,
+        "dictionary": {"policy": len(agent.policy.f), "critic": len(agent.critic)}
+        if algo == "adaptiveh"
+        else None,
         "config": cfg,
     }
 
@@ -645,6 +704,71 @@ def _pendulum_variants_summary(runs: list[dict]) -> dict:
     return out
 
 
+def _paper_finals(paper_summary: Path, setting: str, method: str) -> dict[int, float]:
+    """``method``'s final return per seed on ``setting`` in the paper bench's summary."""
+    if not paper_summary.is_file():
+        return {}
+    runs = json.loads(paper_summary.read_text()).get("per_run", {})
+    prefix = f"{setting}__{method}__s"
+    return {
+        int(k[len(prefix) :].split("__")[0]): r["final_return"]
+        for k, r in runs.items()
+        if k.startswith(prefix)
+    }
+
+
+def _reach_summary(reach: list[dict], paper_summary: Path) -> dict:
+    """Each NS Reach variant's final return; its difference from the unscheduled learner (unpaired, as
+    first reported), and paired per seed from the scheduled learner and from TD3 in the paper bench."""
+    from experiments.stats import bootstrap_diff, bootstrap_paired_diff
+
+    def finals(variant: str) -> dict[int, float]:
+        return {r["seed"]: r["final_return"] for r in reach if r["variant"] == variant}
+
+    td3, out = _paper_finals(paper_summary, "reach_slow", "td3"), {}
+    for variant in REACH_VARIANTS:
+        rs = [r for r in reach if r["variant"] == variant]
+        if not rs:
+            continue
+        entry = {**_group(rs), "per_seed": [round(r["final_return"], 2) for r in rs]}
+        if variant != "unscheduled" and finals("unscheduled"):
+            entry["minus_unscheduled"] = bootstrap_diff(
+                [r["final_return"] for r in rs], list(finals("unscheduled").values())
+            )
+        if variant != "scheduled" and finals("scheduled"):
+            entry["minus_scheduled_paired"] = bootstrap_paired_diff(finals(variant), finals("scheduled"))
+        if td3:
+            entry["minus_td3_paired"] = bootstrap_paired_diff(finals(variant), td3)
+        entry["dictionary_mean"] = {
+            k: float(np.mean([r["dictionary"][k] for r in rs])) for k in ("policy", "critic")
+        }
+        out[f"reach_{variant}"] = entry
+    return out
+
+
+def _reach_baselines_summary(runs: list[dict], paper_summary: Path) -> dict:
+    """Each baseline variant's final return, paired per seed against the paper bench's TD3 (the zoo's
+    noise) and against AdaptiveH there: what the lever NS Reach's std was tuned with does for TD3."""
+    from experiments.stats import bootstrap_paired_diff
+
+    td3 = _paper_finals(paper_summary, "reach_slow", "td3")
+    ours = _paper_finals(paper_summary, "reach_slow", "adaptiveh")
+    out = {}
+    for v in dict.fromkeys(r["variant"] for r in runs):
+        finals = {r["seed"]: r["final_return"] for r in runs if r["variant"] == v}
+        entry = {
+            **_group([r for r in runs if r["variant"] == v]),
+            "per_seed": [round(x, 2) for x in finals.values()],
+        }
+        if td3:
+            entry["minus_paper_td3_paired"] = bootstrap_paired_diff(finals, td3)
+            entry["replays_paper_td3"] = all(abs(finals[k] - td3[k]) < 1e-9 for k in finals if k in td3)
+        if ours:
+            entry["paper_adaptiveh_minus_this_paired"] = bootstrap_paired_diff(ours, finals)
+        out[v] = entry
+    return out
+
+
 def summarize(out: dict, paper_summary: Path) -> dict:
     from experiments.stats import bootstrap_diff
 
@@ -686,16 +810,9 @@ def summarize(out: dict, paper_summary: Path) -> dict:
                 digests.get(r["seed"]) == r["returns_digest"] for r in by["after"]
             )
         summary[env_key] = entry
-    reach = out.get("reach") or []
-    base = [r["final_return"] for r in reach if r["variant"] == "unscheduled"]
-    for variant in REACH_VARIANTS:
-        rs = [r for r in reach if r["variant"] == variant]
-        if not rs:
-            continue
-        entry = {**_group(rs), "per_seed": [round(r["final_return"], 2) for r in rs]}
-        if variant != "unscheduled" and base:
-            entry["minus_unscheduled"] = bootstrap_diff([r["final_return"] for r in rs], base)
-        summary[f"reach_{variant}"] = entry
+    summary.update(_reach_summary(out.get("reach") or [], paper_summary))
+    if out.get("reach_baselines"):
+        summary["reach_baselines"] = _reach_baselines_summary(out["reach_baselines"], paper_summary)
     probes = out.get("probe") or []
     for variant in ("before", "after"):
         ps = [p for run in probes if run["variant"] == variant for p in run["probes"]]
@@ -739,9 +856,13 @@ def summarize(out: dict, paper_summary: Path) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--parts", default="probe,performance,reach,pendulum_variants,noise,env_cost,checks")
+    p.add_argument(
+        "--parts", default="probe,performance,reach,reach_baselines,pendulum_variants,noise,env_cost,checks"
+    )
     p.add_argument("--eval-episodes", type=int, default=30, help="of the noise part")
     p.add_argument("--pendulum-variants", default=",".join(PENDULUM_VARIANTS), help="of pendulum_variants")
+    p.add_argument("--reach-variants", default=",".join(REACH_VARIANTS), help="of the reach part")
+    p.add_argument("--reach-baselines", default="td3_noise_0.05,td3_noise_0.2", help="of reach_baselines")
     p.add_argument("--variants", default="before,after", help="of the probe and performance parts")
     p.add_argument("--check-variants", default="before,after,options")
     p.add_argument("--steps", type=int, default=20_000)
@@ -768,7 +889,16 @@ def main() -> None:
     out: dict[str, Any] = {
         **{
             k: old[k]
-            for k in ("probe", "performance", "checks", "reach", "noise", "env_cost", "pendulum_variants")
+            for k in (
+                "probe",
+                "performance",
+                "checks",
+                "reach",
+                "reach_baselines",
+                "noise",
+                "env_cost",
+                "pendulum_variants",
+            )
             if k in old
         },
         "commands": [c for c in old.get("commands", [old.get("command")]) if c]
@@ -778,6 +908,7 @@ def main() -> None:
         "options_overrides": OPTIONS,
         "scheduled_overrides": SCHEDULES,
         "reach_variants": REACH_VARIANTS,
+        "reach_baseline_variants": REACH_BASELINE_VARIANTS,
         "pendulum_variants_overrides": PENDULUM_VARIANTS,
         "started_at": time.strftime("%Y-%m-%dT%H:%M:%S"),
     }
@@ -801,12 +932,30 @@ def main() -> None:
         kept = [r for r in old.get("performance", []) if r["variant"] not in variants]  # --merge
         out["performance"] = kept + _pool_map(plain_run, tasks, a.jobs)
     if "reach" in parts:
+        names = [v for v in a.reach_variants.split(",") if v]
         tasks = [
             ("reach_slow", v, REACH_VARIANTS[v], s, ENVS["reach_slow"].steps)
-            for v in REACH_VARIANTS
+            for v in names
             for s in range(a.seeds)
         ]
-        out["reach"] = _pool_map(plain_run, tasks, a.jobs)
+        kept = [r for r in old.get("reach", []) if r["variant"] not in names]  # --merge
+        out["reach"] = kept + _pool_map(plain_run, tasks, a.jobs)
+    if "reach_baselines" in parts:
+        names = [v for v in a.reach_baselines.split(",") if v]
+        tasks = [
+            (
+                "reach_slow",
+                v,
+                REACH_BASELINE_VARIANTS[v][1],
+                s,
+                ENVS["reach_slow"].steps,
+                REACH_BASELINE_VARIANTS[v][0],
+            )
+            for v in names
+            for s in range(a.seeds)
+        ]
+        kept = [r for r in old.get("reach_baselines", []) if r["variant"] not in names]  # --merge
+        out["reach_baselines"] = kept + _pool_map(plain_run, tasks, a.jobs)
     if "pendulum_variants" in parts:
         names = [v for v in a.pendulum_variants.split(",") if v]
         tasks = [
