@@ -125,44 +125,36 @@ UNSCHEDULED: dict[str, Any] = {"sigma_final": None, "alpha_final": None}
 # episodes of the last 10 % are what the bench scores: at a constant step and std the policy still jitters
 # there, and the exploration noise itself costs distance (an oracle that steps straight at the target
 # loses ~0.23 of return per 0.5 cm of action noise).
+_REACH_KERNEL = {"bandwidth": [5.0] * 12 + [0.5] * 3}  # the kernel the schedules were first tuned with
+_STD_TO_01 = {**_REACH_KERNEL, "sigma_final": 0.1, "alpha_final": 0.125}
+
+
+def _relative_kernel(width: float) -> dict[str, Any]:
+    return {"bandwidth": [5.0] * 12 + [width] * 3}
+
+
 REACH_VARIANTS: dict[str, dict[str, Any]] = {
-    "unscheduled": UNSCHEDULED,  # configs/reach.yaml before the schedules
-    "sigma_only": {"sigma_final": 0.2, "alpha_final": None},
-    "small_step": {**UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
-    "scheduled": {"sigma_final": 0.2, "alpha_final": 0.125},  # the schedules first adopted
-    "step_to_0.02": {"sigma_final": 0.1, "alpha_final": 0.02},  # annealed further: did not help
+    "unscheduled": {**_REACH_KERNEL, **UNSCHEDULED},  # configs/reach.yaml before the schedules
+    "sigma_only": {**_REACH_KERNEL, "sigma_final": 0.2, "alpha_final": None},
+    "small_step": {**_REACH_KERNEL, **UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
+    "scheduled": {**_REACH_KERNEL, "sigma_final": 0.2, "alpha_final": 0.125},  # the schedules first adopted
+    "step_to_0.02": {
+        **_REACH_KERNEL,
+        "sigma_final": 0.1,
+        "alpha_final": 0.02,
+    },  # annealed further: froze a seed
     # The std annealed to the baselines' exploration noise (0.1 of the half-range), the step as scheduled
-    "std_to_0.1": {"sigma_final": 0.1, "alpha_final": 0.125},
-    "std_to_0.05": {"sigma_final": 0.05, "alpha_final": 0.125},
-    "std_to_0.1_step_0.25": {"sigma_final": 0.1, "alpha_final": 0.25},
-    # with the std to 0.1: the policy kernel's width on the relative target coordinates (0.5 configured)
-    "std_to_0.1_relative_bw_0.3": {
-        "sigma_final": 0.1,
-        "alpha_final": 0.125,
-        "bandwidth": [5.0] * 12 + [0.3] * 3,
-    },
-    "std_to_0.1_relative_bw_0.2": {
-        "sigma_final": 0.1,
-        "alpha_final": 0.125,
-        "bandwidth": [5.0] * 12 + [0.2] * 3,
-    },
-    "std_to_0.1_relative_bw_1": {
-        "sigma_final": 0.1,
-        "alpha_final": 0.125,
-        "bandwidth": [5.0] * 12 + [1.0] * 3,
-    },
-    "std_to_0.1_q_critic": {
-        "sigma_final": 0.1,
-        "alpha_final": 0.125,
-        "critic": "q",
-        "policy_gradient": "expected",
-    },
-    "std_to_0.1_residual": {
-        "sigma_final": 0.1,
-        "alpha_final": 0.125,
-        "residual_baseline": 0.999,
-        "residual_fit": "least_squares",
-    },
+    "std_to_0.1": _STD_TO_01,
+    "std_to_0.05": {**_STD_TO_01, "sigma_final": 0.05},
+    "std_to_0.1_step_0.25": {**_STD_TO_01, "alpha_final": 0.25},
+    # with the std to 0.1: the policy kernel's width on the relative target coordinates (0.5 above)
+    "std_to_0.1_relative_bw_0.4": {**_STD_TO_01, **_relative_kernel(0.4)},
+    "std_to_0.1_relative_bw_0.3": {**_STD_TO_01, **_relative_kernel(0.3)},  # configs/reach.yaml now
+    "std_to_0.1_relative_bw_0.2": {**_STD_TO_01, **_relative_kernel(0.2)},
+    "std_to_0.1_relative_bw_1": {**_STD_TO_01, **_relative_kernel(1.0)},
+    "std_to_0.1_relative_bw_0.3_budget_200": {**_STD_TO_01, **_relative_kernel(0.3), "policy_budget": 200},
+    "std_to_0.1_q_critic": {**_STD_TO_01, "critic": "q", "policy_gradient": "expected"},
+    "std_to_0.1_residual": {**_STD_TO_01, "residual_baseline": 0.999, "residual_fit": "least_squares"},
 }
 
 
