@@ -173,6 +173,7 @@ class FrankyBackend:
         """Name what stopped the arm: libfranka's error flags, or a lost connection."""
         if self._fault is not None:
             return
+        self._stopping = True  # the reflex (or lost link) ended our motion: no command runs, none to brake
         text = f"{type(exc).__name__}: {exc}"
         if isinstance(exc, self.franky.NetworkException) or "Net Exception" in str(exc):
             self._fault = Fault((CONNECTION_LOST,), text)

@@ -66,6 +66,19 @@ def test_streamed_targets_move_and_hold_stills_the_command_within_two_periods(ba
     assert backend.fault() is None
 
 
+def test_a_fault_ends_the_stream_so_the_arm_is_where_the_reflex_left_it(backend):
+    """After a reflex no command runs: the state reports no command (the controller anchors on the measured
+    arm) and a hold has nothing to brake, until recovery."""
+    q = backend.read_state().q
+    backend.send_joint_command(q + np.array([0.005, 0, 0, 0, 0, 0, 0]))
+    assert backend.read_state().q_cmd is not None
+    time.sleep(0.3)  # the streamed motion ends by itself (its coast waypoint)
+    backend._set_fault(RuntimeError("libfranka: Move command aborted: motion aborted by reflex!"))
+    assert backend.read_state().q_cmd is None and backend.fault() is not None
+    assert backend.recover() and backend.fault() is None
+    assert backend.read_state().q_cmd is None
+
+
 class ScriptedFaults:
     """A backend whose driver faults on cue: the controller's policy is what is under test."""
 
