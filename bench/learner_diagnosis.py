@@ -67,6 +67,7 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Callable
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -660,6 +661,10 @@ def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
     return out
 
 
+def _names(csv: str) -> list[str]:
+    return [v for v in csv.split(",") if v]
+
+
 def _pool_map(fn, tasks: list, jobs: int) -> list:
     if jobs <= 1:
         return [fn(t) for t in tasks]
@@ -915,46 +920,45 @@ def main() -> None:
             for s in range(a.probe_seeds)
         ]
         out["probe"] = _pool_map(probe_run, tasks, a.jobs)
+
+    def variant_runs(part: str, names: list[str], task: Callable[[str, int], tuple]) -> list[dict]:
+        """Each named variant's ``plain_run`` over the seeds; with --merge, the other variants' kept."""
+        tasks = [task(v, s) for v in names for s in range(a.seeds)]
+        kept = [r for r in old.get(part, []) if r["variant"] not in names]
+        return kept + _pool_map(plain_run, tasks, a.jobs)
+
+    reach_steps = ENVS["reach_slow"].steps
     if "performance" in parts:
-        tasks = [
-            ("pendulum_slow", v, _overrides("pendulum_slow", v), s, a.steps)
-            for v in variants
-            for s in range(a.seeds)
-        ]
-        kept = [r for r in old.get("performance", []) if r["variant"] not in variants]  # --merge
-        out["performance"] = kept + _pool_map(plain_run, tasks, a.jobs)
+        out["performance"] = variant_runs(
+            "performance",
+            variants,
+            lambda v, s: ("pendulum_slow", v, _overrides("pendulum_slow", v), s, a.steps),
+        )
     if "reach" in parts:
-        names = [v for v in a.reach_variants.split(",") if v]
-        tasks = [
-            ("reach_slow", v, REACH_VARIANTS[v], s, ENVS["reach_slow"].steps)
-            for v in names
-            for s in range(a.seeds)
-        ]
-        kept = [r for r in old.get("reach", []) if r["variant"] not in names]  # --merge
-        out["reach"] = kept + _pool_map(plain_run, tasks, a.jobs)
+        out["reach"] = variant_runs(
+            "reach",
+            _names(a.reach_variants),
+            lambda v, s: ("reach_slow", v, REACH_VARIANTS[v], s, reach_steps),
+        )
     if "reach_baselines" in parts:
-        names = [v for v in a.reach_baselines.split(",") if v]
-        tasks = [
-            (
+        out["reach_baselines"] = variant_runs(
+            "reach_baselines",
+            _names(a.reach_baselines),
+            lambda v, s: (
                 "reach_slow",
                 v,
                 REACH_BASELINE_VARIANTS[v][1],
                 s,
-                ENVS["reach_slow"].steps,
+                reach_steps,
                 REACH_BASELINE_VARIANTS[v][0],
-            )
-            for v in names
-            for s in range(a.seeds)
-        ]
-        kept = [r for r in old.get("reach_baselines", []) if r["variant"] not in names]  # --merge
-        out["reach_baselines"] = kept + _pool_map(plain_run, tasks, a.jobs)
+            ),
+        )
     if "pendulum_variants" in parts:
-        names = [v for v in a.pendulum_variants.split(",") if v]
-        tasks = [
-            ("pendulum_slow", v, PENDULUM_VARIANTS[v], s, a.steps) for v in names for s in range(a.seeds)
-        ]
-        kept = [r for r in old.get("pendulum_variants", []) if r["variant"] not in names]  # --merge
-        out["pendulum_variants"] = kept + _pool_map(plain_run, tasks, a.jobs)
+        out["pendulum_variants"] = variant_runs(
+            "pendulum_variants",
+            _names(a.pendulum_variants),
+            lambda v, s: ("pendulum_slow", v, PENDULUM_VARIANTS[v], s, a.steps),
+        )
     if "noise" in parts:
         out["noise"] = _pool_map(noise_run, [(s, a.steps, a.eval_episodes) for s in range(a.seeds)], a.jobs)
     if "env_cost" in parts:
