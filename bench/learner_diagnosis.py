@@ -139,11 +139,8 @@ REACH_VARIANTS: dict[str, dict[str, Any]] = {
     "sigma_only": {**_REACH_KERNEL, "sigma_final": 0.2, "alpha_final": None},
     "small_step": {**_REACH_KERNEL, **UNSCHEDULED, "alpha": 0.1},  # a constant smaller step, no annealing
     "scheduled": {**_REACH_KERNEL, "sigma_final": 0.2, "alpha_final": 0.125},  # the schedules first adopted
-    "step_to_0.02": {
-        **_REACH_KERNEL,
-        "sigma_final": 0.1,
-        "alpha_final": 0.02,
-    },  # annealed further: froze a seed
+    # annealed further: froze a seed
+    "step_to_0.02": {**_REACH_KERNEL, "sigma_final": 0.1, "alpha_final": 0.02},
     # The std annealed to the baselines' exploration noise (0.1 of the half-range), the step as scheduled
     "std_to_0.1": _STD_TO_01,
     "std_to_0.05": {**_STD_TO_01, "sigma_final": 0.05},
