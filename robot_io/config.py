@@ -60,11 +60,6 @@ class FrankaConfig(Section):
     # mlockall at connect (robot_io/backends/memory_lock.py): no page fault stalls the 1 kHz loop. It needs
     # CAP_IPC_LOCK or `ulimit -l unlimited`; refused: fatal under realtime: enforce, else a warning.
     lock_memory: bool = False
-    # libfranka's rate limiter on every command (franky's move(limit_rate=...)): each 1 ms command is clipped
-    # to the arm's velocity, acceleration and jerk limits relative to the last command the robot recorded, so
-    # a streamed segment that starts from a stale dq_d/ddq_d (after a lost cycle) cannot read as a
-    # discontinuity reflex; it bends the command only where it would have exceeded them.
-    limit_rate: bool = False
     lower_torque_thresholds: Joints = (20.0,) * 7
     upper_torque_thresholds: Joints = (40.0,) * 7
     lower_force_thresholds: Wrench = (10.0,) * 6

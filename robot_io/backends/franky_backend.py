@@ -208,7 +208,7 @@ class FrankyBackend:
     def _move(self, motion: Any) -> None:
         try:
             with self._loop_priority():
-                self.robot.move(motion, asynchronous=True, limit_rate=self.fc.limit_rate)
+                self.robot.move(motion, asynchronous=True)
         except Exception as exc:  # franky rethrows a stored motion error here, or refuses the move
             self._set_fault(exc)
 
@@ -315,8 +315,7 @@ class FrankyBackend:
         self._stopping = True
         try:
             with self._loop_priority():
-                motion = f.JointWaypointMotion([home], self.fc.home_dynamics)
-                self.robot.move(motion, asynchronous=True, limit_rate=self.fc.limit_rate)
+                self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
             if not self.robot.join_motion(timeout=timeout_s):
                 raise TimeoutError(f"franka did not reach home within {timeout_s} s")
             self._hold_at(np.asarray(q_home, float))
