@@ -108,11 +108,12 @@ SCHEDULES: dict[str, Any] = {"sigma_final": 0.2, "alpha_final": 0.004}
 UPRIGHT = (0.3, 1.0)  # |θ| (rad) and |θ̇| (rad/s) of the "upright" region
 
 
-def _variant_config(env_key: str, overrides: dict[str, Any]) -> dict[str, Any]:
-    """The env's configs/<env>.yaml agent section with a variant's overrides on top."""
+def _variant_config(env_key: str, overrides: dict[str, Any], algo: str = "adaptiveh") -> dict[str, Any]:
+    """``algo``'s config as the paper bench runs it on ``env_key`` (AdaptiveH: configs/<env>.yaml's agent
+    section; a baseline: its defaults) with a variant's overrides on top."""
     from experiments.plan import ENVS, agent_config
 
-    return {**agent_config(ENVS[env_key], "adaptiveh"), **overrides}
+    return {**agent_config(ENVS[env_key], algo), **overrides}
 
 
 # configs/pendulum.yaml now carries the scheduled learner; every variant starts from the learner as the
@@ -528,14 +529,11 @@ def plain_run(args: tuple) -> dict:
     """One run of AdaptiveH (or, with a sixth element, of that algorithm on its paper-bench config plus
     the overrides) as the paper bench runs it, uninstrumented."""
     from experiments.metrics import run_metrics
-    from experiments.plan import ENVS, agent_config
+    from experiments.plan import ENVS
 
     env_key, variant, overrides, seed, steps, *rest = args
     algo = rest[0] if rest else "adaptiveh"
-    if algo == "adaptiveh":
-        cfg = _variant_config(env_key, overrides)
-    else:
-        cfg = {**agent_config(ENVS[env_key], algo), **overrides}
+    cfg = _variant_config(env_key, overrides, algo)
     env, agent = _build(env_key, seed, cfg, algo)
     rss, wall, cpu = {}, 0.0, 0.0
     # a baseline learns in one call, as in the paper bench (SB3 trains a cut rollout at each call's end)
@@ -680,20 +678,23 @@ def _group(runs: list[dict], key: str = "final_return") -> dict:
     return bootstrap_mean([r[key] for r in runs])
 
 
+def _finals(runs: list[dict], variant: str) -> dict[int, float]:
+    """A variant's final return per seed (a seed is one world for every variant: the pairing key)."""
+    return {r["seed"]: r["final_return"] for r in runs if r["variant"] == variant}
+
+
 def _pendulum_variants_summary(runs: list[dict]) -> dict:
     """Each variant's final return, and its paired difference from the configured learner."""
     from experiments.stats import bootstrap_paired_diff
 
-    base = {r["seed"]: r["final_return"] for r in runs if r["variant"] == "configured"}
+    base = _finals(runs, "configured")
     out = {}
     for v in dict.fromkeys(r["variant"] for r in runs):
         rs = [r for r in runs if r["variant"] == v]
         entry = {**_group(rs), "per_seed": [round(r["final_return"], 1) for r in rs]}
         entry["seeds_at_or_above_-250"] = sum(r["final_return"] >= -250 for r in rs)
         if v != "configured" and base:
-            entry["minus_configured_paired"] = bootstrap_paired_diff(
-                {r["seed"]: r["final_return"] for r in rs}, base
-            )
+            entry["minus_configured_paired"] = bootstrap_paired_diff(_finals(runs, v), base)
         out[v] = entry
     return out
 
@@ -716,23 +717,21 @@ def _reach_summary(reach: list[dict], paper_summary: Path) -> dict:
     first reported), and paired per seed from the scheduled learner and from TD3 in the paper bench."""
     from experiments.stats import bootstrap_diff, bootstrap_paired_diff
 
-    def finals(variant: str) -> dict[int, float]:
-        return {r["seed"]: r["final_return"] for r in reach if r["variant"] == variant}
-
     td3, out = _paper_finals(paper_summary, "reach_slow", "td3"), {}
+    unscheduled, scheduled = _finals(reach, "unscheduled"), _finals(reach, "scheduled")
     for variant in REACH_VARIANTS:
         rs = [r for r in reach if r["variant"] == variant]
         if not rs:
             continue
         entry = {**_group(rs), "per_seed": [round(r["final_return"], 2) for r in rs]}
-        if variant != "unscheduled" and finals("unscheduled"):
+        if variant != "unscheduled" and unscheduled:
             entry["minus_unscheduled"] = bootstrap_diff(
-                [r["final_return"] for r in rs], list(finals("unscheduled").values())
+                [r["final_return"] for r in rs], list(unscheduled.values())
             )
-        if variant != "scheduled" and finals("scheduled"):
-            entry["minus_scheduled_paired"] = bootstrap_paired_diff(finals(variant), finals("scheduled"))
+        if variant != "scheduled" and scheduled:
+            entry["minus_scheduled_paired"] = bootstrap_paired_diff(_finals(reach, variant), scheduled)
         if td3:
-            entry["minus_td3_paired"] = bootstrap_paired_diff(finals(variant), td3)
+            entry["minus_td3_paired"] = bootstrap_paired_diff(_finals(reach, variant), td3)
         entry["dictionary_mean"] = {
             k: float(np.mean([r["dictionary"][k] for r in rs])) for k in ("policy", "critic")
         }
@@ -749,7 +748,7 @@ def _reach_baselines_summary(runs: list[dict], paper_summary: Path) -> dict:
     ours = _paper_finals(paper_summary, "reach_slow", "adaptiveh")
     out = {}
     for v in dict.fromkeys(r["variant"] for r in runs):
-        finals = {r["seed"]: r["final_return"] for r in runs if r["variant"] == v}
+        finals = _finals(runs, v)
         entry = {
             **_group([r for r in runs if r["variant"] == v]),
             "per_seed": [round(x, 2) for x in finals.values()],
