@@ -149,9 +149,9 @@ class Counts:
         backend, hold, send = c.backend, c.backend.hold, c.backend.send_joint_command
 
         def on_hold() -> None:
-            # A brake is a hold while our motion runs: a fault's own hold is not one (the reflex ended the
-            # motion; until robot-io saw it, counting it made every reflex look 0 s after a brake).
-            if not backend._stopping and backend._fault is None:
+            # A brake is a hold while our motion runs; a fault ends the motion (the backend sets _stopping),
+            # so the hold robot-io makes for it is not counted (it was: each reflex looked 0 s after a brake).
+            if not backend._stopping:
                 with self.lock:
                     self.holds.append(time.monotonic())
             hold()
