@@ -395,6 +395,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "command": "python bench/franka_sim_stream.py"
         + (f" --minutes {args.minutes:g}" if args.minutes != 10 else "")
+        + (f" --config {args.config}" if args.config != "configs/franka_sim.yaml" else "")
         + (f" --sim-fifo-priority {args.sim_fifo_priority}" if args.sim_fifo_priority != 99 else "")
         + (f" --disturb-s {args.disturb_s:g}" if args.disturb_s > 0 else "")
         + (f" --lock-memory {args.lock_memory}" if args.lock_memory != "config" else "")
