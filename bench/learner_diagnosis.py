@@ -170,7 +170,8 @@ REACH_BASELINE_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 # NS Pendulum's variants (part ``pendulum_variants``), each on top of configs/pendulum.yaml as configured;
 # none beat it (README, "The learner"). A longer horizon with the step scaled by (1 - γ) so that the
 # actor's α/(1-γ) stays; GAE(λ) advantages; the critic's own, narrower kernel (a value function can be
-# sharper than a policy needs to be).
+# sharper than a policy needs to be); a longer critic memory, longer GAE traces, shorter segments and a
+# wider start of the annealed exploration.
 PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
     "configured": {},
     "gamma_0.98_scaled": {"gamma": 0.98, "alpha": 0.008, "alpha_final": 0.0016},
@@ -179,6 +180,10 @@ PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
     "critic_bandwidth_0.25": {"critic_bandwidth": 0.25},
     "critic_bandwidth_0.2": {"critic_bandwidth": 0.2},
     "critic_bandwidth_0.15": {"critic_bandwidth": 0.15},
+    "critic_forgetting_0.9995": {"critic_forgetting": 0.9995},
+    "gae_0.8": {"advantage_lambda": 0.8},
+    "h_max_20": {"h_max": 20},
+    "sigma_0.7": {"sigma": 0.7},
 }
 
 
