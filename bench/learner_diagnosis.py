@@ -728,15 +728,16 @@ def _reach_summary(reach: list[dict], paper_summary: Path) -> dict:
         rs = [r for r in reach if r["variant"] == variant]
         if not rs:
             continue
+        mine = _finals(reach, variant)
         entry = {**_group(rs), "per_seed": [round(r["final_return"], 2) for r in rs]}
         if variant != "unscheduled" and unscheduled:
             entry["minus_unscheduled"] = bootstrap_diff(
                 [r["final_return"] for r in rs], list(unscheduled.values())
             )
         if variant != "scheduled" and scheduled:
-            entry["minus_scheduled_paired"] = bootstrap_paired_diff(_finals(reach, variant), scheduled)
+            entry["minus_scheduled_paired"] = bootstrap_paired_diff(mine, scheduled)
         if td3:
-            entry["minus_td3_paired"] = bootstrap_paired_diff(_finals(reach, variant), td3)
+            entry["minus_td3_paired"] = bootstrap_paired_diff(mine, td3)
         entry["dictionary_mean"] = {
             k: float(np.mean([r["dictionary"][k] for r in rs])) for k in ("policy", "critic")
         }
