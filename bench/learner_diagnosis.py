@@ -184,6 +184,22 @@ PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
     "gae_0.8": {"advantage_lambda": 0.8},
     "h_max_20": {"h_max": 20},
     "sigma_0.7": {"sigma": 0.7},
+    # Session of 2026-12-01: re-used samples (learner/replay.py: a window of recent transitions re-scored
+    # by the critic as it stands, truncated importance ratio), the critic's eligibility trace (LSTD(λ)),
+    # the critic's prior/cap P0 (with a longer horizon too), a wider and a finer critic, no weight decay, a
+    # larger step and no gradient clip.
+    "replay_256_8": {"replay_window": 256, "replay_batch": 8},
+    "replay_256_32": {"replay_window": 256, "replay_batch": 32},
+    "replay_1000_16_half_step": {"replay_window": 1000, "replay_batch": 16, "replay_step": 0.5},
+    "critic_lambda_0.5": {"critic_lambda": 0.5},
+    "critic_lambda_0.8": {"critic_lambda": 0.8},
+    "critic_p0_100": {"critic_p0": 100.0},
+    "gamma_0.97_scaled_p0_100": {"gamma": 0.97, "alpha": 0.012, "alpha_final": 0.0024, "critic_p0": 100.0},
+    "critic_bandwidth_0.5": {"critic_bandwidth": 0.5},
+    "critic_ald_0.02_budget_500": {"critic_ald": 0.02, "critic_budget": 500},
+    "weight_decay_0": {"weight_decay": 0.0},
+    "alpha_0.03": {"alpha": 0.03, "alpha_final": 0.006},
+    "grad_norm_300": {"max_grad_norm": 300.0},
 }
 
 

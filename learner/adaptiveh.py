@@ -35,6 +35,7 @@ from learner.normalizer import StateNormalizer
 from learner.plans import Plan, PlanChannel, QueuedChannel, rollout
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
+from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, default_threshold
 
 
@@ -88,6 +89,7 @@ class AdaptiveH:
             cfg.residual_baseline,
             cfg.visit_memory,
             cfg.residual_fit,
+            cfg.critic_lambda,
         )
         threshold = cfg.retreat_threshold
         if threshold is None:
@@ -111,6 +113,8 @@ class AdaptiveH:
         # and the matured (state, gradient) pairs that the next segment update applies.
         self._pending: deque[list] = deque()
         self._matured: list[tuple[np.ndarray, np.ndarray]] = []
+        self.replay = TransitionWindow(cfg.replay_window) if cfg.replay_window > 0 else None
+        self._replay_rng = np.random.default_rng([seed, 1])  # its own stream: acting draws stay the same
         self._obs: np.ndarray | None = None
         self._ep_return = 0.0
         self._ep_len = 0
@@ -251,6 +255,9 @@ class AdaptiveH:
         g = self._shape(s, g)
         if self.config.advantage_lambda > 0.0:
             self._accrue(s, score, advantage, episode_over)
+        if self.replay is not None:
+            log_prob = self.policy.log_prob(s, raw)  # under the policy that drew it, before any update
+            self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
         retreat = self.retreat.push(s, g, predicted, reached)
         if retreat:
             return self._close_segment("retreat")
@@ -315,6 +322,26 @@ class AdaptiveH:
             return self.grad_scale * self.critic.expected_gradient(s, mean, sigma), advantage
         return self.grad_scale * advantage * score, advantage
 
+    def _replay_update(self) -> None:
+        """Apply ``replay_batch`` past transitions' gradients again (learner/replay.py). No weight decay:
+        that is charged once per environment sample."""
+        states, grads = [], []
+        for t in self.replay.sample(self.config.replay_batch, self._replay_rng):
+            g = self._replayed_gradient(t)
+            if np.all(np.isfinite(g)):
+                states.append(t.s)
+                grads.append(self._shape(t.s, g))
+        if states:
+            step = self.alpha * self.config.replay_step
+            self.policy.update(states, grads, step, 0.0, self.config.mean_limit)
+
+    def _replayed_gradient(self, t: Transition) -> np.ndarray:
+        """``c · min(1, π(a|s)/μ(a|s)) · δ · score``: the TD error as the critic sees it now, the score at the
+        current mean, the truncated importance ratio of the policy now against the one that drew ``a``."""
+        delta = self.critic.td_error(t.s, t.reward, t.s_next, t.terminated)
+        ratio = min(1.0, float(np.exp(self.policy.log_prob(t.s, t.raw) - t.log_prob)))
+        return self.grad_scale * ratio * delta * self.policy.score(t.s, t.raw)
+
     def _schedule(self) -> None:
         """This step's exploration std and step size on their schedules (``sigma_final``, ``alpha_final``):
         a policy still moving at full step and full noise late in a run swings between good and bad."""
@@ -339,6 +366,8 @@ class AdaptiveH:
                 )
         else:
             self.policy.update(states, grads, self.alpha, cfg.weight_decay, cfg.mean_limit)
+        if self.replay is not None:
+            self._replay_update()
         record = SegmentRecord(
             index=self.log.segment_count,
             global_step=self.log.global_step,
@@ -360,6 +389,7 @@ class AdaptiveH:
 
     def _finish_episode(self, info: dict) -> None:
         self._mature(everything=True)  # an episode's advantages never reach into the next one
+        self.critic.end_episode()
         scalars = _info_scalars(info)
         success = scalars.get("is_success", scalars.get("success"))
         self.log.episodes.append(
@@ -395,6 +425,8 @@ class AdaptiveH:
             "nonfinite_skipped": self.nonfinite_skipped,
             "pending": [list(e) for e in self._pending],
             "matured": list(self._matured),
+            "replay": None if self.replay is None else self.replay.state_dict(),
+            "replay_rng": self._replay_rng.bit_generator.state,
             "env": env_state,
         }
 
@@ -411,6 +443,9 @@ class AdaptiveH:
         self.nonfinite_skipped = state["nonfinite_skipped"]
         self._pending = deque([list(e) for e in state.get("pending", [])])
         self._matured = list(state.get("matured", []))
+        if self.replay is not None and state.get("replay") is not None:
+            self.replay.load_state_dict(state["replay"])
+            self._replay_rng.bit_generator.state = state["replay_rng"]
         set_state = getattr(self.env.unwrapped, "set_state", None)
         if state["env"] is not None and callable(set_state):
             self.env.reset()  # wrappers (gym.make's OrderEnforcing) refuse step() before a reset

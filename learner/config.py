@@ -50,6 +50,7 @@ class AdaptiveHConfig(Section):
     critic_ald: float = Field(0.05, ge=0, lt=1)
     critic_forgetting: float = Field(0.999, gt=0, le=1)
     critic_p0: float = Field(10.0, gt=0)
+    critic_lambda: float = Field(0.0, ge=0, lt=1)  # the critic's eligibility trace, LSTD(λ); 0: TD(0)
     # The retreat statistic (learner/retreat.py); None: the execution's own, ``local`` in the closed loop and
     # ``plan`` in plan execution (measured: ``local`` cannot see a plan go stale; results/plans).
     retreat: RetreatMode | None = None
@@ -74,6 +75,12 @@ class AdaptiveHConfig(Section):
     # GAE(λ) advantages for the value critic: Σ_k (γλ)^k δ_{t+k} in place of δ_t (less critic bias, more
     # variance); a sample's gradient enters the update once its weight (γλ)^k < 1 %. 0: the TD error.
     advantage_lambda: float = Field(0.0, ge=0, le=1)
+    # Re-use of recent samples (learner/replay.py): at each segment update, replay_batch transitions drawn
+    # from the last replay_window are applied again, re-scored by the critic as it stands and weighted by
+    # their truncated importance ratio, at replay_step times alpha. 0: off. Closed loop, value critic.
+    replay_window: int = Field(0, ge=0)
+    replay_batch: int = Field(32, ge=1)
+    replay_step: float = Field(1.0, gt=0)
     # |f| past which a step no longer pushes the squashed mean outward (learner/policy.py); None: unbounded.
     # These options are off by default: NS Pendulum needs them, NS CartPole does worse with them
     # (bench/learner_diagnosis.py, configs/pendulum.yaml).
@@ -99,6 +106,13 @@ class AdaptiveHConfig(Section):
             raise ValueError(
                 "advantage_lambda sums TD errors: it needs critic: value, policy_gradient: sampled"
             )
+        if self.replay_window > 0 and (self.critic != "value" or self.execution != "closed_loop"):
+            raise ValueError(
+                "replay_window re-scores past samples with the value critic's TD error and their sampling "
+                "policy's likelihood: it needs critic: value, execution: closed_loop"
+            )
+        if self.replay_window > 0 and self.advantage_lambda > 0:
+            raise ValueError("replay_window re-scores one-step TD errors: set advantage_lambda to 0")
         if self.residual_baseline is not None and self.critic != "value":
             raise ValueError("residual_baseline is for the value critic (critic: value)")
         if self.policy_gradient == "expected" and self.critic == "value":

@@ -59,6 +59,7 @@ class KLSTDCritic:
         residual_memory: float | None = None,
         visit_memory: float = 1.0,
         residual_fit: str = "kernel_mean",
+        trace_lambda: float = 0.0,
     ):
         if mode not in MODES:
             raise ValueError(f"critic mode must be one of {MODES}, got {mode!r}")
@@ -76,6 +77,11 @@ class KLSTDCritic:
         self.block = 1 + action_dim if mode == "compatible" else 1
         self.theta = np.zeros(0)
         self.P = np.zeros((0, 0))
+        # LSTD(λ) (Boyan 2002): the gain follows the eligibility trace z ← γλz + φ_t instead of φ_t. λ moves
+        # the fixed point from TD(0)'s towards the least-squares fit of the Monte-Carlo returns (less bias
+        # where the features cannot represent V, more variance). 0: RLS-TD(0).
+        self.trace_lambda = trace_lambda
+        self.trace = np.zeros(0)
         # The TD error's state-only part: a kernel-weighted running mean of TD errors (see residual()).
         if residual_memory is not None and mode != "value":
             raise ValueError("the residual baseline is for the value critic (critic: value)")
@@ -144,6 +150,16 @@ class KLSTDCritic:
         kvec = self.dictionary.features(s)
         return float((self._phi(kvec, score) - self._phi(kvec, None)) @ self.theta)
 
+    def td_error(self, s: np.ndarray, r: float, s_next: np.ndarray, terminal: bool) -> float:
+        """``r + γV(s') - V(s) - B(s)`` under the critic as it stands, without fitting (value critic): the
+        advantage a past transition gets when it is re-used (learner/replay.py)."""
+        if self.mode != "value":
+            raise ValueError("re-scoring a past transition needs the value critic (critic: value)")
+        if len(self) == 0:
+            return float(r)
+        nxt = 0.0 if terminal else self.value(s_next)
+        return float(r + self.gamma * nxt - self.value(s) - self.residual(s))
+
     def update(
         self,
         s: np.ndarray,
@@ -176,13 +192,19 @@ class KLSTDCritic:
             nxt = np.zeros_like(u) if terminal else self._phi(self.dictionary.features(s_next), None)
         v = u - self.gamma * nxt
         td_error = float(r - v @ self.theta)
+        z = u
+        if self.trace_lambda > 0.0:
+            self.trace = self.gamma * self.trace_lambda * self.trace + u
+            z = self.trace
         if self.mode == "value":
             advantage = td_error
             if self.residual_memory is not None:
                 advantage = td_error - self._residual_step(u, td_error)
         elif self.mode == "compatible":
             advantage = self.advantage(s, score)
-        pu = self.P @ u
+        if terminal:
+            self.end_episode()
+        pu = self.P @ z
         denom = self.forgetting + float(v @ pu)
         if abs(denom) < 1e-9:
             return advantage
@@ -193,6 +215,10 @@ class KLSTDCritic:
         if peak > self.p0:
             self.P *= self.p0 / peak
         return advantage
+
+    def end_episode(self) -> None:
+        """An episode's credit never reaches into the next one: clear the eligibility trace."""
+        self.trace = np.zeros_like(self.theta)
 
     def visits(self, s: np.ndarray) -> float:
         """How many past samples fell near ``s``: each sample adds its soft assignment to the centers,
@@ -258,6 +284,7 @@ class KLSTDCritic:
         self.dictionary.append(s, kvec)
         b, n = self.block, len(self.theta)
         self.theta = np.concatenate([self.theta, np.zeros(b)])
+        self.trace = np.concatenate([self.trace, np.zeros(b)])  # past features of the new center: unknown
         grown = np.zeros((n + b, n + b))
         grown[:n, :n] = self.P
         grown[n:, n:] = self.p0 * np.eye(b)
@@ -287,6 +314,7 @@ class KLSTDCritic:
         self.theta = blocks.ravel()
         keep = np.repeat(keep_c, b)
         self.P = self.P[np.ix_(keep, keep)]
+        self.trace = self.trace[keep]
         if self.residual_fit == "least_squares" and b == 1:  # the removed center's weight, projected
             self.res_num = self.res_num[keep_c] + coeffs * self.res_num[j]
         else:
@@ -301,6 +329,7 @@ class KLSTDCritic:
             "dictionary": self.dictionary.state_dict(),
             "theta": self.theta,
             "P": self.P,
+            "trace": self.trace,
             "res_num": self.res_num,
             "res_den": self.res_den,
             "res_P": self.res_P,
@@ -310,6 +339,7 @@ class KLSTDCritic:
     def load_state_dict(self, state: dict) -> None:
         self.dictionary.load_state_dict(state["dictionary"])
         self.theta, self.P = state["theta"], state["P"]
+        self.trace = state.get("trace", np.zeros_like(self.theta))
         n = len(self.dictionary)
         self.res_num = state.get("res_num", np.zeros(n))
         self.res_den = state.get("res_den", np.zeros(n))

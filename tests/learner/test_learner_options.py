@@ -15,6 +15,7 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.policy import RKHSGaussianPolicy
+from learner.replay import Transition, TransitionWindow
 
 
 def _policy(limit_case_weight: float) -> RKHSGaussianPolicy:
@@ -265,6 +266,8 @@ def test_compatible_expected_gradient_is_the_advantage_weight_over_sigma_squared
         {"critic": "q", "critic_budget": 80},
         {"critic": "compatible", "policy_gradient": "expected"},
         {"residual_baseline": 0.99, "visit_step": 20.0, "mean_limit": 3.0},
+        {"replay_window": 200, "replay_batch": 8, "residual_baseline": 0.99},
+        {"critic_lambda": 0.5},
     ],
 )
 def test_each_option_runs_resumes_and_stays_finite(tmp_path, options):
@@ -288,6 +291,9 @@ def test_each_option_runs_resumes_and_stays_finite(tmp_path, options):
         ({"policy_gradient": "expected"}, "needs critic"),
         ({"critic": "q", "residual_baseline": 0.99}, "residual_baseline"),
         ({"critic": "q", "visit_step": 10.0}, "visit_step"),
+        ({"critic": "q", "replay_window": 100}, "replay_window"),
+        ({"execution": "plan", "replay_window": 100}, "closed_loop"),
+        ({"advantage_lambda": 0.5, "replay_window": 100}, "advantage_lambda"),
     ],
 )
 def test_option_combinations_that_cannot_work_are_refused(options, match):
@@ -313,3 +319,101 @@ def test_critic_bandwidth_gives_the_critic_its_own_kernel_and_leaves_the_policys
     assert len(agent.critic) > len(shared.critic)
     with pytest.raises(ValueError, match="critic_bandwidth: expected 1 or 3 values"):
         AdaptiveH(env, AdaptiveHConfig(critic_bandwidth=[0.2, 0.2]), 2)
+
+
+# -- re-used samples ---------------------------------------------------------------------------------
+
+
+def test_transition_window_keeps_the_newest_and_samples_without_replacement():
+    window = TransitionWindow(5)
+    for i in range(8):
+        window.push(Transition(np.array([float(i)]), np.zeros(1), 0.0, np.zeros(1), False, 0.0))
+    assert len(window) == 5 and [t.s[0] for t in window.items] == [3.0, 4.0, 5.0, 6.0, 7.0]
+    drawn = window.sample(4, np.random.default_rng(0))
+    assert len({t.s[0] for t in drawn}) == 4
+    assert len(window.sample(50, np.random.default_rng(0))) == 5
+    with pytest.raises(ValueError, match="at least 1"):
+        TransitionWindow(0)
+
+
+def test_td_error_rescores_a_transition_without_fitting():
+    critic = KLSTDCritic(GaussianKernel(0.5, 1), 0.9, 50, 0.05, 0.999, 10.0, "value", residual_memory=0.99)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        x = rng.uniform(-1, 1, 1)
+        critic.update(x, float(x[0]), np.clip(x + 0.1, -1, 1), False)
+    s, s2 = np.array([0.2]), np.array([0.3])
+    theta = critic.theta.copy()
+    expected = 0.5 + 0.9 * critic.value(s2) - critic.value(s) - critic.residual(s)
+    assert critic.td_error(s, 0.5, s2, False) == pytest.approx(expected)
+    assert critic.td_error(s, 0.5, s2, True) == pytest.approx(0.5 - critic.value(s) - critic.residual(s))
+    np.testing.assert_array_equal(critic.theta, theta)  # nothing was fitted
+    # What update() hands the actor is the same TD error, taken before the fit.
+    assert critic.update(s, 0.5, s2, False) == pytest.approx(expected)
+
+
+def test_replayed_gradient_is_weighted_by_the_truncated_importance_ratio():
+    cfg = AdaptiveHConfig(replay_window=10, sigma=0.3)
+    agent = AdaptiveH(gym.make("NSPendulum-v0", preset="stationary", seed=0), cfg, 0)
+    agent.learn(50)
+    s = agent.normalize(np.array([1.0, 0.0, 0.0]))
+    raw = agent.policy.mean(s) + 0.2
+    now = agent.policy.log_prob(s, raw)
+    unweighted = agent.grad_scale * agent.critic.td_error(s, -1.0, s, False) * agent.policy.score(s, raw)
+    # Drawn by a policy that found it likelier than the current one does: weight π/μ = e^-1.
+    likelier = Transition(s, raw, -1.0, s, False, now + 1.0)
+    np.testing.assert_allclose(agent._replayed_gradient(likelier), np.exp(-1.0) * unweighted)
+    # Drawn by a policy that found it less likely: the ratio e^2 is truncated at 1.
+    rarer = Transition(s, raw, -1.0, s, False, now - 2.0)
+    np.testing.assert_allclose(agent._replayed_gradient(rarer), unweighted)
+
+
+def test_replay_moves_the_policy_more_per_sample_than_the_samples_alone():
+    """The same run with and without re-use: equal acting draws until the first update, then more change."""
+
+    def run(window: int) -> AdaptiveH:
+        cfg = AdaptiveHConfig(replay_window=window, replay_batch=16, fixed_h=10)
+        agent = AdaptiveH(gym.make("NSPendulum-v0", preset="stationary", seed=4), cfg, 4)
+        agent.learn(400)
+        return agent
+
+    plain, replayed = run(0), run(100)
+    assert replayed.replay is not None and len(replayed.replay) == 100 and plain.replay is None
+    assert plain.log.segments[0].global_step == replayed.log.segments[0].global_step
+    assert replayed.policy.f.norm2() > plain.policy.f.norm2()
+
+
+# -- the critic's eligibility trace -------------------------------------------------------------------
+
+
+def test_lstd_lambda_recovers_the_values_of_a_deterministic_ring():
+    """LSTD(λ) has the same fixed point as LSTD(0) with one-hot features: V = (I - γP)⁻¹ r."""
+    n, gamma = 5, 0.9
+    r = np.array([1.0, 0.0, -2.0, 0.5, 3.0])
+    v_true = np.linalg.solve(np.eye(n) - gamma * np.roll(np.eye(n), 1, axis=1), r)
+    critic = KLSTDCritic(GaussianKernel(1.0, 1), gamma, 50, 0.1, 1.0, 100.0, "value", trace_lambda=0.8)
+    for t in range(3000):
+        i = t % n
+        critic.update(np.array([10.0 * i]), r[i], np.array([10.0 * ((i + 1) % n)]), terminal=False)
+    v_hat = np.array([critic.value(np.array([10.0 * i])) for i in range(n)])
+    np.testing.assert_allclose(v_hat, v_true, atol=0.05 * np.abs(v_true).max())
+    assert np.abs(critic.trace).max() > 1.0  # the trace carries the past states' features
+    critic.end_episode()
+    np.testing.assert_array_equal(critic.trace, np.zeros(n))
+
+
+def test_lstd_lambda_moves_the_fixed_point_towards_the_monte_carlo_fit():
+    """A chain 0→1→…→4 ending with reward 1, one feature for all states (V̂ a constant c): TD(0)'s fixed point
+    solves Σ_t (1 - γ[t<4]) c = 1, c = 1/1.4; the Monte-Carlo fit is the mean return, mean_i γ^(4-i)."""
+    gamma = 0.9
+
+    def fit(lam: float) -> float:
+        critic = KLSTDCritic(GaussianKernel(1e3, 1), gamma, 5, 0.1, 1.0, 100.0, "value", trace_lambda=lam)
+        for _ in range(200):
+            for i in range(5):
+                critic.update(np.array([float(i)]), float(i == 4), np.array([i + 1.0]), terminal=i == 4)
+        assert len(critic) == 1
+        return critic.value(np.array([2.0]))
+
+    assert fit(0.0) == pytest.approx(1 / 1.4, rel=1e-3)
+    assert fit(0.999) == pytest.approx(np.mean(gamma ** np.arange(5)), rel=1e-2)
