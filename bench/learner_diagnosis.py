@@ -200,6 +200,11 @@ PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
     "weight_decay_0": {"weight_decay": 0.0},
     "alpha_0.03": {"alpha": 0.03, "alpha_final": 0.006},
     "grad_norm_300": {"max_grad_norm": 300.0},
+    # The step's schedule around the configured 0.02 -> 0.004: how far apart neighbouring settings land.
+    "alpha_0.04": {"alpha": 0.04},
+    "alpha_0.04_to_0.002": {"alpha": 0.04, "alpha_final": 0.002},
+    "alpha_0.03_to_0.004": {"alpha": 0.03},
+    "alpha_0.05": {"alpha": 0.05},
 }
 
 
