@@ -49,9 +49,10 @@ class PendulumGrid:
         self.torques = np.linspace(-NSPendulum.max_torque, NSPendulum.max_torque, n_actions)
         th, w, u = np.meshgrid(self.thetas, self.speeds, self.torques, indexing="ij")
         th2, w2, self.reward = diagnosis._pendulum_step(th, w, u)
-        self.successor = self._weights(th2, w2)
+        self.successor = self.weights(th2, w2)
 
-    def _weights(self, th: np.ndarray, w: np.ndarray) -> tuple:
+    def weights(self, th: np.ndarray, w: np.ndarray) -> tuple:
+        """Bilinear interpolation weights of the states ``(θ, θ̇)`` on the grid."""
         n_t, n_w = len(self.thetas), len(self.speeds)
         d_t = 2 * np.pi / n_t
         f_t = (angle_normalize(th) + np.pi) / d_t
@@ -84,6 +85,10 @@ class PendulumGrid:
                 return new, sweep
             v = new
         raise RuntimeError(f"value iteration at gamma {gamma} did not converge in {max_sweeps} sweeps")
+
+    def value_at(self, v: np.ndarray):
+        """The grid's value ``v`` as a function of ``(θ, θ̇)`` arrays."""
+        return lambda th, w: self.interpolate(v, self.weights(th, w))
 
     def greedy(self, value_of_next, gamma: float):
         """The policy ``argmax_u r(θ, θ̇, u) + γ value_of_next(θ', θ̇')`` over the grid's torques."""
@@ -120,9 +125,7 @@ def optimum_run(args: tuple) -> dict:
     t0 = time.perf_counter()
     grid = PendulumGrid(*grid_shape)
     v, sweeps = grid.value_iteration(gamma)
-    returns = episode_returns(
-        grid.greedy(lambda th, w: grid.interpolate(v, grid._weights(th, w)), gamma), start_states(n_starts)
-    )
+    returns = episode_returns(grid.greedy(grid.value_at(v), gamma), start_states(n_starts))
     return {
         "gamma": gamma,
         "mean_return": float(returns.mean()),

@@ -16,7 +16,7 @@ def test_the_optimal_policy_holds_the_top_and_swings_up_from_the_bottom():
     grid = PendulumGrid(*COARSE)
     v, sweeps = grid.value_iteration(0.95)
     assert sweeps < 500 and np.all(np.isfinite(v))
-    policy = grid.greedy(lambda th, w: grid.interpolate(v, grid._weights(th, w)), 0.95)
+    policy = grid.greedy(grid.value_at(v), 0.95)
     top, bottom = episode_returns(policy, np.array([[0.0, 0.0], [np.pi, 0.0]]))
     assert top > -1.0  # balanced upright: almost no cost
     idle = episode_returns(lambda th, w: 0.0, np.array([[np.pi - 0.01, 0.0]]))[0]
