@@ -187,7 +187,7 @@ PENDULUM_VARIANTS: dict[str, dict[str, Any]] = {
     # Session of 2026-12-01: re-used samples (learner/replay.py: a window of recent transitions re-scored
     # by the critic as it stands, truncated importance ratio), the critic's eligibility trace (LSTD(λ)),
     # the critic's prior/cap P0 (with a longer horizon too), a wider and a finer critic, no weight decay, a
-    # larger step and no gradient clip.
+    # larger step and a looser gradient clip.
     "replay_256_8": {"replay_window": 256, "replay_batch": 8},
     "replay_256_32": {"replay_window": 256, "replay_batch": 32},
     "replay_1000_16_half_step": {"replay_window": 1000, "replay_batch": 16, "replay_step": 0.5},

@@ -144,10 +144,10 @@ def learner_run(args: tuple) -> dict:
     env.close()
 
     def obs(th: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return np.stack([np.cos(th), np.sin(th), w], axis=-1)
+        return diagnosis._observe(np.atleast_1d(th), np.atleast_1d(w), 0.0, None)  # noise-free
 
     def mean_action(th: float, w: float) -> float:
-        return float(agent.predict(obs(np.array(th), np.array(w)))[0])
+        return float(agent.predict(obs(th, w)[0])[0])
 
     def critic_value(th: np.ndarray, w: np.ndarray) -> np.ndarray:
         return np.array([agent.critic.value(agent.normalize(o)) for o in obs(th, w)])

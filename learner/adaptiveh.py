@@ -247,7 +247,7 @@ class AdaptiveH:
             # A NaN must never reach the dictionaries: drop the sample and close the segment.
             self.nonfinite_skipped += 1
             return self._close_segment("episode_end" if episode_over else "retreat")
-        score = self.policy.score(s, raw)
+        log_prob, score = self.policy.log_prob_and_score(s, raw)  # under the policy that drew raw
         g, advantage = self._gradient(s, raw, score, reward, s_next, terminated)
         if not np.isfinite(float(np.linalg.norm(g))):
             self.nonfinite_skipped += 1
@@ -256,7 +256,6 @@ class AdaptiveH:
         if self.config.advantage_lambda > 0.0:
             self._accrue(s, score, advantage, episode_over)
         if self.replay is not None:
-            log_prob = self.policy.log_prob(s, raw)  # under the policy that drew it, before any update
             self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
         retreat = self.retreat.push(s, g, predicted, reached)
         if retreat:
@@ -339,8 +338,9 @@ class AdaptiveH:
         """``c · min(1, π(a|s)/μ(a|s)) · δ · score``: the TD error as the critic sees it now, the score at the
         current mean, the truncated importance ratio of the policy now against the one that drew ``a``."""
         delta = self.critic.td_error(t.s, t.reward, t.s_next, t.terminated)
-        ratio = min(1.0, float(np.exp(self.policy.log_prob(t.s, t.raw) - t.log_prob)))
-        return self.grad_scale * ratio * delta * self.policy.score(t.s, t.raw)
+        log_prob, score = self.policy.log_prob_and_score(t.s, t.raw)
+        ratio = min(1.0, float(np.exp(log_prob - t.log_prob)))
+        return self.grad_scale * ratio * delta * score
 
     def _schedule(self) -> None:
         """This step's exploration std and step size on their schedules (``sigma_final``, ``alpha_final``):

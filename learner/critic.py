@@ -157,8 +157,10 @@ class KLSTDCritic:
             raise ValueError("re-scoring a past transition needs the value critic (critic: value)")
         if len(self) == 0:
             return float(r)
+        kvec = self.dictionary.features(s)
+        baseline = self._residual_of(kvec) if self.residual_memory is not None else 0.0
         nxt = 0.0 if terminal else self.value(s_next)
-        return float(r + self.gamma * nxt - self.value(s) - self.residual(s))
+        return float(r + self.gamma * nxt - kvec @ self.theta - baseline)
 
     def update(
         self,

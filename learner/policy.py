@@ -55,7 +55,19 @@ class RKHSGaussianPolicy:
         episodes. This straight-through form keeps the sign and scale of the paper's gradient, and
         weight decay pulls saturated regions back.
         """
-        return self.half_range * self.sigma_inv2 * (raw_action - self.mean(s))
+        return self._score(raw_action - self.mean(s))
+
+    def log_prob_and_score(self, s: np.ndarray, raw_action: np.ndarray) -> tuple[float, np.ndarray]:
+        """(:meth:`log_prob`, :meth:`score`) from one evaluation of the mean."""
+        deviation = raw_action - self.mean(s)
+        return self._log_density(deviation), self._score(deviation)
+
+    def _score(self, deviation: np.ndarray) -> np.ndarray:
+        return self.half_range * self.sigma_inv2 * deviation
+
+    def _log_density(self, deviation: np.ndarray) -> float:
+        z = deviation / self.sigma
+        return float(-0.5 * z @ z - np.log(self.sigma).sum() - 0.5 * len(z) * np.log(2 * np.pi))
 
     def bound_gradient(self, s: np.ndarray, g: np.ndarray, limit: float | None) -> np.ndarray:
         """``g`` without the components that would push ``|f(s)|`` further past ``limit``.
@@ -74,8 +86,7 @@ class RKHSGaussianPolicy:
         return np.where(outward, 0.0, g) if outward.any() else g
 
     def log_prob(self, s: np.ndarray, raw_action: np.ndarray) -> float:
-        z = (raw_action - self.mean(s)) / self.sigma
-        return float(-0.5 * z @ z - np.log(self.sigma).sum() - 0.5 * len(z) * np.log(2 * np.pi))
+        return self._log_density(raw_action - self.mean(s))
 
     def update(
         self,
