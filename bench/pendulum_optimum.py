@@ -13,10 +13,15 @@ against the task's own optimum rather than against another learner:
    frozen, on the same noise-free starts: its mean action, and the one-step greedy policy on its own
    critic (``argmax_u r + γ V̂(s')`` with the true dynamics: a lookahead the learner does not have, asking
    whether the critic is good enough to act on).
+3. Critic or actor. The same learner with its actor fed the optimal advantage ``r + γV*(s') - V*(s)`` on
+   the env's true states (V* from the value iteration at the learner's γ; the critic still fits, the
+   actor ignores it), at the configured step and at twice it (``VARIANTS``): what the learner reaches
+   with a perfect critic, its final return paired per seed against its own critic's and against SAC's
+   in results/paper.
 
 Writes ``results/pendulum_optimum.json`` and prints a table.
 
-    python bench/pendulum_optimum.py --jobs 2     # ~5 min on two cores
+    python bench/pendulum_optimum.py --jobs 2     # ~9 min on two cores
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import sys
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -135,13 +141,64 @@ def optimum_run(args: tuple) -> dict:
     }
 
 
-def learner_run(args: tuple) -> dict:
-    """The configured learner after ``steps`` on seed ``seed``'s world, frozen, on the noise-free starts."""
-    seed, steps, grid_shape, n_starts = args
-    cfg = diagnosis._variant_config("pendulum_slow", {})
-    env, agent = diagnosis._build("pendulum_slow", seed, cfg)
+class TrueStateProbe(gym.Wrapper):
+    """Keeps the pendulum's true ``(θ, θ̇)`` before and after each step, for the oracle; the learner still
+    sees only the noisy observation."""
+
+    def step(self, action):
+        self.before = self.unwrapped.state.copy()
+        out = self.env.step(action)
+        self.after = self.unwrapped.state.copy()
+        return out
+
+
+class OptimalAdvantage:
+    """The learner's own critic, fitted as always (its visit counts and baseline stay live), whose
+    advantage for the actor is replaced by ``r + γ V*(s') - V*(s)`` on the true states: a sample of the
+    optimal advantage, the best signal any critic could hand this actor."""
+
+    def __init__(self, critic, probe: TrueStateProbe, value_of, gamma: float):
+        self.critic, self.probe, self.value_of, self.gamma = critic, probe, value_of, gamma
+
+    def update(self, s, r, s_next, terminal, *args, **kwargs) -> float:
+        self.critic.update(s, r, s_next, terminal, *args, **kwargs)
+        before, after = self.probe.before, self.probe.after
+        v_next = 0.0 if terminal else float(self.value_of(after[:1], after[1:])[0])
+        return float(r + self.gamma * v_next - self.value_of(before[:1], before[1:])[0])
+
+    def __getattr__(self, name: str):
+        return getattr(self.critic, name)
+
+
+def _learn(seed: int, steps: int, overrides: dict, oracle_value=None):
+    """The configured learner (plus ``overrides``) after ``steps`` on seed ``seed``'s world, and its final
+    return as the paper bench scores it; ``oracle_value``: the actor learns from the optimal advantage."""
+    from experiments.execute import make_env
+    from experiments.metrics import run_metrics
+    from experiments.plan import ENVS, env_kwargs
+    from learner.registry import make_agent
+
+    spec = ENVS["pendulum_slow"]
+    cfg = diagnosis._variant_config("pendulum_slow", overrides)
+    env = TrueStateProbe(make_env(spec, env_kwargs(spec, seed)))
+    agent = make_agent("adaptiveh", env, seed, cfg)
+    if oracle_value is not None:
+        agent.critic = OptimalAdvantage(agent.critic, env, oracle_value, cfg["gamma"])
     agent.learn(steps)
     env.close()
+    episodes = agent.log.episodes
+    metrics = run_metrics([e.global_step for e in episodes], [e.ret for e in episodes], steps, spec.threshold)
+    return agent, cfg, metrics["final_return"]
+
+
+def learner_run(args: tuple) -> dict:
+    """The configured learner after ``steps`` on seed ``seed``'s world, frozen, on the noise-free starts.
+    With ``oracle`` set (a grid's γ-optimal value), its actor learned from the optimal advantage instead."""
+    seed, steps, grid_shape, n_starts, *rest = args
+    overrides, oracle = rest if rest else ({}, None)
+    grid = PendulumGrid(*grid_shape)
+    oracle_value = None if oracle is None else grid.value_at(oracle)
+    agent, cfg, final_return = _learn(seed, steps, overrides, oracle_value)
 
     def obs(th: np.ndarray, w: np.ndarray) -> np.ndarray:
         return diagnosis._observe(np.atleast_1d(th), np.atleast_1d(w), 0.0, None)  # noise-free
@@ -152,17 +209,58 @@ def learner_run(args: tuple) -> dict:
     def critic_value(th: np.ndarray, w: np.ndarray) -> np.ndarray:
         return np.array([agent.critic.value(agent.normalize(o)) for o in obs(th, w)])
 
-    grid = PendulumGrid(*grid_shape)
     starts = start_states(n_starts)
     mean_returns = episode_returns(mean_action, starts)
-    greedy_returns = episode_returns(grid.greedy(critic_value, cfg["gamma"]), starts)
-    return {
+    out = {
         "seed": seed,
         "gamma": cfg["gamma"],
+        "overrides": overrides,
+        "oracle": oracle is not None,
+        "final_return": final_return,
         "mean_policy": float(mean_returns.mean()),
-        "critic_greedy": float(greedy_returns.mean()),
         "mean_policy_returns": mean_returns.tolist(),
     }
+    if oracle is None:  # greedy on the learned critic; the oracle's would be the optimum's own
+        out["critic_greedy"] = float(episode_returns(grid.greedy(critic_value, cfg["gamma"]), starts).mean())
+    return out
+
+
+# The actor's step as configured and doubled (the one schedule that gained on the learned critic too).
+VARIANTS: dict[str, dict] = {"configured": {}, "alpha_0.04": {"alpha": 0.04}}
+PAPER_SUMMARY = Path("results/paper/summary.json")
+
+
+def _paper_final_returns(algo: str, seeds: int) -> dict[int, float] | None:
+    """``algo``'s NS Pendulum final return per seed from the paper bench, when its summary is there."""
+    if not PAPER_SUMMARY.is_file():
+        return None
+    per_run = json.loads(PAPER_SUMMARY.read_text())["per_run"]
+    names = {s: f"pendulum_slow__{algo}__s{s}__20000" for s in range(seeds)}
+    return {s: per_run[n]["final_return"] for s, n in names.items() if n in per_run} or None
+
+
+def _oracle_summary(runs: list[dict], seeds: int) -> dict:
+    """Per variant: the learned and the oracle-fed actor's final returns, paired per seed, and against SAC."""
+    from experiments.stats import bootstrap_mean, bootstrap_paired_diff
+
+    sac = _paper_final_returns("sac", seeds)
+    out = {}
+    for name in VARIANTS:
+        mine = [r for r in runs if r["variant"] == name]
+        learned = {r["seed"]: r["final_return"] for r in mine if not r["oracle"]}
+        oracle = {r["seed"]: r["final_return"] for r in mine if r["oracle"]}
+        out[name] = {
+            "learned": bootstrap_mean(list(learned.values())) | {"per_seed": learned},
+            "oracle": bootstrap_mean(list(oracle.values())) | {"per_seed": oracle},
+            "oracle_minus_learned": bootstrap_paired_diff(oracle, learned),
+            "oracle_seeds_at_or_above_-250": sum(x >= -250 for x in oracle.values()),
+            "learned_mean_policy": bootstrap_mean([r["mean_policy"] for r in mine if not r["oracle"]]),
+            "oracle_mean_policy": bootstrap_mean([r["mean_policy"] for r in mine if r["oracle"]]),
+        }
+        if sac is not None:
+            out[name]["oracle_minus_sac"] = bootstrap_paired_diff(oracle, sac)
+            out[name]["learned_minus_sac"] = bootstrap_paired_diff(learned, sac)
+    return {"sac_final_return_per_seed": sac, "variants": out}
 
 
 def main() -> None:
@@ -181,12 +279,22 @@ def main() -> None:
     tasks = [(g, shape, a.starts) for g in gammas]
     print(f"value iteration at gamma {gammas}, then the learner on {a.seeds} seeds ...", flush=True)
     optima = diagnosis._pool_map(optimum_run, tasks, a.jobs)
-    learned = diagnosis._pool_map(
-        learner_run, [(s, a.steps, shape, a.starts) for s in range(a.seeds)], a.jobs
-    )
+    learner_gamma = diagnosis._variant_config("pendulum_slow", {})["gamma"]
+    oracle_v, _ = PendulumGrid(*shape).value_iteration(learner_gamma)
+    runs = [
+        (s, a.steps, shape, a.starts, overrides, oracle_v if oracle else None)
+        for name, overrides in VARIANTS.items()
+        for oracle in (False, True)
+        for s in range(a.seeds)
+    ]
+    learned = diagnosis._pool_map(learner_run, runs, a.jobs)
+    names = {json.dumps(o, sort_keys=True): n for n, o in VARIANTS.items()}
+    for r in learned:
+        r["variant"] = names[json.dumps(r["overrides"], sort_keys=True)]
     from experiments.execute import code_version
     from experiments.stats import bootstrap_mean
 
+    configured = [r for r in learned if r["variant"] == "configured" and not r["oracle"]]
     out = {
         "command": " ".join(["python", *sys.argv]),
         "code": code_version(),
@@ -196,8 +304,9 @@ def main() -> None:
         "learner": learned,
         "summary": {
             "optimum_by_gamma": {str(r["gamma"]): r["mean_return"] for r in optima},
-            "learner_mean_policy": bootstrap_mean([r["mean_policy"] for r in learned]),
-            "learner_critic_greedy": bootstrap_mean([r["critic_greedy"] for r in learned]),
+            "learner_mean_policy": bootstrap_mean([r["mean_policy"] for r in configured]),
+            "learner_critic_greedy": bootstrap_mean([r["critic_greedy"] for r in configured]),
+            "optimal_advantage": _oracle_summary(learned, a.seeds),
         },
     }
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
@@ -207,11 +316,13 @@ def main() -> None:
         print(
             f"  gamma {r['gamma']:.2f}: {r['mean_return']:8.1f}  ({r['sweeps']} sweeps, {r['wall_s']:.0f} s)"
         )
-    print("configured learner after its steps, frozen, same starts:")
+    print("the learner after its steps (final return in training; frozen mean action on the starts):")
     for r in learned:
+        who = "optimal advantage" if r["oracle"] else "its own critic   "
+        greedy = f"   greedy on its critic {r['critic_greedy']:8.1f}" if "critic_greedy" in r else ""
         print(
-            f"  seed {r['seed']}: mean action {r['mean_policy']:8.1f}"
-            f"   greedy on its critic {r['critic_greedy']:8.1f}"
+            f"  {r['variant']:<10} {who} seed {r['seed']}: final {r['final_return']:8.1f}"
+            f"   mean action {r['mean_policy']:8.1f}{greedy}"
         )
     print(json.dumps(out["summary"], indent=1))
 
