@@ -55,6 +55,8 @@ annealed over the run (``SCHEDULES``).
     python bench/learner_diagnosis.py --parts probe --probe-seeds 1 --steps 8000   # a quick look
     python bench/learner_diagnosis.py --parts noise,env_cost --merge   # the noise and the env's cost
     python bench/learner_diagnosis.py --parts pendulum_variants --merge   # NS Pendulum's variants
+    python bench/learner_diagnosis.py --parts pendulum_variants --merge --first-seed 5 \
+        --pendulum-variants configured,alpha_0.04   # five more seeds (5-9) of two variants
 Writes ``results/learner_diagnosis.json`` (``--out``) and prints a summary.
 """
 
@@ -888,6 +890,7 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=20_000)
     p.add_argument("--every", type=int, default=4_000)
     p.add_argument("--seeds", type=int, default=5)
+    p.add_argument("--first-seed", type=int, default=0, help="of the variant parts: seeds from here")
     p.add_argument("--probe-seeds", type=int, default=2)
     p.add_argument("--probe-states", type=int, default=96)
     p.add_argument("--probe-reps", type=int, default=16)
@@ -945,9 +948,11 @@ def main() -> None:
         out["probe"] = _pool_map(probe_run, tasks, a.jobs)
 
     def variant_runs(part: str, names: list[str], task: Callable[[str, int], tuple]) -> list[dict]:
-        """Each named variant's ``plain_run`` over the seeds; with --merge, the other variants' kept."""
-        tasks = [task(v, s) for v in names for s in range(a.seeds)]
-        kept = [r for r in old.get(part, []) if r["variant"] not in names]
+        """Each named variant's ``plain_run`` over the seeds; with --merge, every other (variant, seed)'s
+        run kept (``--first-seed`` adds more seeds to a variant)."""
+        seeds = range(a.first_seed, a.first_seed + a.seeds)
+        tasks = [task(v, s) for v in names for s in seeds]
+        kept = [r for r in old.get(part, []) if not (r["variant"] in names and r["seed"] in seeds)]
         return kept + _pool_map(plain_run, tasks, a.jobs)
 
     reach_steps = ENVS["reach_slow"].steps
