@@ -68,6 +68,6 @@ def test_the_oracle_hands_the_actor_the_optimal_advantage_on_the_true_states():
 def test_the_learner_probe_runs_with_the_optimal_advantage():
     grid = PendulumGrid(*COARSE)
     v, _ = grid.value_iteration(0.95)
-    out = learner_run((0, 400, COARSE, 2, {"alpha": 0.04}, v))
+    out = learner_run((0, 400, COARSE, 2, "alpha_0.04", v))
     assert out["oracle"] and out["overrides"] == {"alpha": 0.04} and "critic_greedy" not in out
     assert np.isfinite(out["final_return"]) and np.isfinite(out["mean_policy"])
