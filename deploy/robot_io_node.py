@@ -41,6 +41,7 @@ from robot_io.controller import ArmHeld, ArmState, RobotController, TickResult
 from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
+LIVELINESS_QUERY_S = 1.0  # how long a reset waits for the network to confirm its session's token
 
 
 def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
@@ -207,6 +208,7 @@ class RobotIONode(Node):
                 )
                 self._wake.set()
                 return m.ResetReply(ok=False, detail=f"reset refused: {why}")
+        self._confirm_alive(request.session)
         done, box = threading.Event(), []
         with self._lock:
             self._resets.append((request, done, box))
@@ -214,6 +216,20 @@ class RobotIONode(Node):
         if not done.wait(timeout=30.0):
             return m.ResetReply(ok=False, detail="reset timed out")
         return box[0]
+
+    def _confirm_alive(self, session: str) -> None:
+        """A new learner's reset can arrive before its token's announcement does (measured: under load,
+        the first reset was refused as a forgery). Before the gate judges a session it has not seen
+        alive, ask the network whether that token exists now; a session without one is still refused."""
+        if not session or self.controller.learner_is_alive(session):
+            return
+        try:
+            alive = self.bus.alive_now(f"{SESSIONS}/{session}", timeout=LIVELINESS_QUERY_S)
+        except ConnectionError as exc:  # the gate then refuses it, as it would have without asking
+            log.warning("could not confirm session %r: %s", session[:16], exc)
+            return
+        if alive:
+            self.controller.learner_alive(session, True)
 
     # -- publishing ----------------------------------------------------------------------------------
     def _publish_safety(self, kind: str, detail: str, held: bool) -> None:

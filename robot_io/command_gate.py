@@ -43,6 +43,9 @@ class CommandGate:
         else:
             self.live.discard(session)
 
+    def is_alive(self, session: str) -> bool:
+        return session in self.live
+
     def take_over(self, session: str) -> str | None:
         """Obey ``session`` from now on, its numbering starting afresh; returns the session it replaced
         ("" for none). Raises TakeoverRefused for a session that is not alive."""

@@ -159,6 +159,11 @@ class RobotController:
         with self._lock:
             self.gate.alive(session, alive)
 
+    def learner_is_alive(self, session: str) -> bool:
+        """Whether ``session``'s liveliness token has been seen and not lost."""
+        with self._lock:
+            return self.gate.is_alive(session)
+
     def obey(self, session: str) -> None:
         """In-process use (benchmarks, tests): the caller is the learner, alive by construction."""
         self.learner_alive(session, True)

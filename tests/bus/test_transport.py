@@ -199,3 +199,12 @@ def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
         probe.close()
         hub.close()
     assert err.count("reopening its Zenoh session") == 3, err
+
+
+def test_alive_now_asks_the_network_whether_a_token_exists(buses):
+    """``alive_now`` does not rely on a subscriber having heard of the token: it queries the network."""
+    a, b = buses
+    a.declare_alive("learner/abc")
+    assert _wait(lambda: b.alive_now("learner/abc", timeout=1.0))
+    assert not b.alive_now("learner/nobody", timeout=1.0)
+    assert a.alive_now("learner/abc", timeout=1.0)  # its own token too

@@ -14,6 +14,8 @@ from stack_helpers import running_part
 from bus import messages as m
 from bus.learner_session import LearnerSession
 from bus.transport import Bus, ZenohConfig, open_session
+from deploy.config import StackConfig
+from deploy.robot_io_node import RobotIONode
 
 RATE = 20.0
 PERIOD = 1.0 / RATE
@@ -315,3 +317,28 @@ def test_09_only_the_obeyed_session_steers_the_arm(robot):
     assert not reply.ok and "no liveliness token" in reply.detail
     assert listener.latest().session == Robot.session.id
     del stranger
+
+
+def test_a_reset_that_outruns_its_sessions_token_is_confirmed_with_the_network():
+    """robot-io's view of the learner tokens can lag a reset that reaches it first (seen under load: a new
+    learner's first reset refused as a forgery). Made certain here by withdrawing the token from the
+    node's view: the reset asks the network, finds the token and takes the arm over; a session without a
+    token is still refused."""
+    port, name = free_port(), unique_name("ra")
+    endpoint = f"tcp/127.0.0.1:{port}"
+    robot = {"backend": "pybullet", "control_rate_hz": RATE, "target_motion": "slow"}
+    with RobotIONode(StackConfig(name=name, zenoh=ZenohConfig(listen=(endpoint,)), robot=robot)) as node:
+        learner = Bus(open_session(ZenohConfig(connect=(endpoint,))), name)
+        try:
+            probe = BusProbe(learner)
+            session = LearnerSession(learner)
+            probe.wait(lambda: node.controller.learner_is_alive(session.id), 20, "robot-io to see the token")
+            node.controller.learner_alive(session.id, False)  # not heard of yet
+            reply = session.reset(-1, timeout=20)
+            assert reply.ok, reply.detail
+            assert node.controller.learner_is_alive(session.id) and node.controller.gate.session == session.id
+            forged = learner.query(m.RESET, m.ResetRequest(seed=-1, session="f" * 16), timeout=20)
+            assert not forged.ok and "has no liveliness token" in forged.detail
+            assert node.controller.gate.session == session.id  # the arm still obeys the genuine learner
+        finally:
+            learner.close()
