@@ -229,7 +229,7 @@ class RobotIONode(Node):
             log.warning("could not confirm session %r: %s", session[:16], exc)
             return
         if alive:
-            self.controller.learner_alive(session, True)
+            self.controller.learner_confirmed_alive(session)
 
     # -- publishing ----------------------------------------------------------------------------------
     def _publish_safety(self, kind: str, detail: str, held: bool) -> None:

@@ -35,13 +35,22 @@ class CommandGate:
         self.session = ""  # "" until a session takes over: every chunk is foreign
         self.last_seq = -1
         self.live: set[str] = set()
+        self.gone: set[str] = set()  # sessions whose token was seen to go (ids are random: a few a run)
 
     def alive(self, session: str, alive: bool) -> None:
-        """A learner session's liveliness token appeared or disappeared."""
+        """A learner session's liveliness token appeared or disappeared (the subscriber's account)."""
         if alive:
             self.live.add(session)
+            self.gone.discard(session)
         else:
             self.live.discard(session)
+            self.gone.add(session)
+
+    def confirmed_alive(self, session: str) -> None:
+        """The network said ``session``'s token existed a moment ago: alive, unless the subscriber has
+        meanwhile seen it go (a late confirmation must not revive a dead session)."""
+        if session not in self.gone:
+            self.live.add(session)
 
     def is_alive(self, session: str) -> bool:
         return session in self.live

@@ -159,6 +159,12 @@ class RobotController:
         with self._lock:
             self.gate.alive(session, alive)
 
+    def learner_confirmed_alive(self, session: str) -> None:
+        """The network confirmed ``session``'s token before the subscriber announced it (a reset that
+        outran the announcement); ignored when the subscriber has already seen it go."""
+        with self._lock:
+            self.gate.confirmed_alive(session)
+
     def learner_is_alive(self, session: str) -> bool:
         """Whether ``session``'s liveliness token has been seen and not lost."""
         with self._lock:

@@ -111,3 +111,19 @@ def test_gate_alone():
     assert [gate.check("s", k) for k in (0, 2, 3)] == [None, None, "seq_jump"]
     gate.admitted(3)
     assert gate.check("s", 3) == "stale" and gate.check("s", 6) is None
+
+
+def test_a_confirmation_from_the_network_admits_a_session_but_never_revives_a_gone_one():
+    """robot-io's reset asks the network for a token the subscriber has not announced yet
+    (deploy.robot_io_node); that answer can land after the subscriber has seen the token go."""
+    gate = CommandGate(max_seq_gap=3)
+    gate.confirmed_alive("early")  # the reset outran the announcement
+    assert gate.is_alive("early") and gate.take_over("early") == ""
+    gate.alive("late", True)
+    gate.alive("late", False)  # its learner died within the query's second
+    gate.confirmed_alive("late")
+    assert not gate.is_alive("late")
+    with pytest.raises(TakeoverRefused, match="no liveliness token"):
+        gate.take_over("late")
+    gate.alive("late", True)  # the subscriber's own account still counts (a renewed session)
+    assert gate.is_alive("late")
