@@ -902,6 +902,8 @@ def main() -> None:
     p.add_argument("--paper-summary", default=str(ROOT / "results" / "paper" / "summary.json"))
     p.add_argument("--merge", action="store_true", help="keep the parts of --out that this call does not run")
     a = p.parse_args()
+    if a.first_seed < 0:
+        p.error(f"--first-seed must be >= 0, got {a.first_seed}")
     if a.after is not None:
         global AFTER
         AFTER = {k: json.loads(a.after) for k in AFTER}
