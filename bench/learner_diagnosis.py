@@ -228,13 +228,27 @@ def _rss_mb() -> float:
     return int(rss) / 1024.0 if rss is not None else float("nan")
 
 
-def _build(env_key: str, seed: int, cfg: dict[str, Any], algo: str = "adaptiveh"):
+def _build(env_key: str, seed: int, cfg: dict[str, Any], algo: str = "adaptiveh", wrap=None):
+    """The paper bench's env for ``seed`` (inside ``wrap`` when given, e.g. a probe) and the agent on it."""
     from experiments.execute import make_env
     from experiments.plan import ENVS, env_kwargs
     from learner.registry import make_agent
 
     env = make_env(ENVS[env_key], env_kwargs(ENVS[env_key], seed))
+    if wrap is not None:
+        env = wrap(env)
     return env, make_agent(algo, env, seed, cfg)
+
+
+def _run_metrics(agent, env_key: str, steps: int) -> dict[str, Any]:
+    """The paper bench's metrics (final return, steps to threshold, curve) of the agent's episodes."""
+    from experiments.metrics import run_metrics
+    from experiments.plan import ENVS
+
+    episodes = agent.log.episodes
+    return run_metrics(
+        [e.global_step for e in episodes], [e.ret for e in episodes], steps, ENVS[env_key].threshold
+    )
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -556,8 +570,6 @@ def _critic_vs_mc(rec: dict, gamma: float, every: int, steps: int) -> list[dict]
 def plain_run(args: tuple) -> dict:
     """One run of AdaptiveH (or, with a sixth element, of that algorithm on its paper-bench config plus
     the overrides) as the paper bench runs it, uninstrumented."""
-    from experiments.metrics import run_metrics
-    from experiments.plan import ENVS
 
     env_key, variant, overrides, seed, steps, *rest = args
     algo = rest[0] if rest else "adaptiveh"
@@ -575,9 +587,7 @@ def plain_run(args: tuple) -> dict:
         done = m
         rss[str(m)] = _rss_mb()
     log = agent.log
-    metrics = run_metrics(
-        [e.global_step for e in log.episodes], [e.ret for e in log.episodes], steps, ENVS[env_key].threshold
-    )
+    metrics = _run_metrics(agent, env_key, steps)
     env.close()
     return {
         "env": env_key,
@@ -606,20 +616,12 @@ def plain_run(args: tuple) -> dict:
 
 def noise_run(args: tuple[int, int, int]) -> dict:
     """The configured NS Pendulum learner, then its frozen policy on paired fresh episodes."""
-    from experiments.metrics import run_metrics
-    from experiments.plan import ENVS
 
     seed, steps, episodes = args
     cfg = _variant_config("pendulum_slow", {})
     env, agent = _build("pendulum_slow", seed, cfg)
     agent.learn(steps)
-    log = agent.log
-    final = run_metrics(
-        [e.global_step for e in log.episodes],
-        [e.ret for e in log.episodes],
-        steps,
-        ENVS["pendulum_slow"].threshold,
-    )["final_return"]
+    final = _run_metrics(agent, "pendulum_slow", steps)["final_return"]
     std = agent.policy.sigma / agent.policy.half_range  # the final exploration std, of the half-range
     out: dict[str, Any] = {"seed": seed, "steps": steps, "train_final_return": final}
     world = env.unwrapped.get_state()  # the noise drifts with every step: each mode starts from this world

@@ -177,22 +177,13 @@ class OptimalAdvantage:
 def _learn(seed: int, steps: int, overrides: dict, oracle_value=None):
     """The configured learner (plus ``overrides``) after ``steps`` on seed ``seed``'s world, and its final
     return as the paper bench scores it; ``oracle_value``: the actor learns from the optimal advantage."""
-    from experiments.execute import make_env
-    from experiments.metrics import run_metrics
-    from experiments.plan import ENVS, env_kwargs
-    from learner.registry import make_agent
-
-    spec = ENVS["pendulum_slow"]
     cfg = diagnosis._variant_config("pendulum_slow", overrides)
-    env = TrueStateProbe(make_env(spec, env_kwargs(spec, seed)))
-    agent = make_agent("adaptiveh", env, seed, cfg)
+    env, agent = diagnosis._build("pendulum_slow", seed, cfg, wrap=TrueStateProbe)
     if oracle_value is not None:
         agent.critic = OptimalAdvantage(agent.critic, env, oracle_value, cfg["gamma"])
     agent.learn(steps)
     env.close()
-    episodes = agent.log.episodes
-    metrics = run_metrics([e.global_step for e in episodes], [e.ret for e in episodes], steps, spec.threshold)
-    return agent, cfg, metrics["final_return"]
+    return agent, cfg, diagnosis._run_metrics(agent, "pendulum_slow", steps)["final_return"]
 
 
 def learner_run(args: tuple) -> dict:
@@ -232,20 +223,11 @@ def learner_run(args: tuple) -> dict:
     return out
 
 
-def _paper_final_returns(algo: str, seeds: int) -> dict[int, float] | None:
-    """``algo``'s NS Pendulum final return per seed from the paper bench, when its summary is there."""
-    if not PAPER_SUMMARY.is_file():
-        return None
-    per_run = json.loads(PAPER_SUMMARY.read_text())["per_run"]
-    names = {s: f"pendulum_slow__{algo}__s{s}__20000" for s in range(seeds)}
-    return {s: per_run[n]["final_return"] for s, n in names.items() if n in per_run} or None
-
-
-def _oracle_summary(runs: list[dict], seeds: int) -> dict:
+def _oracle_summary(runs: list[dict]) -> dict:
     """Per variant: the learned and the oracle-fed actor's final returns, paired per seed, and against SAC."""
     from experiments.stats import bootstrap_mean, bootstrap_paired_diff
 
-    sac = _paper_final_returns("sac", seeds)
+    sac = diagnosis._paper_finals(PAPER_SUMMARY, "pendulum_slow", "sac") or None
     out = {}
     for name in VARIANTS:
         mine = [r for r in runs if r["variant"] == name]
@@ -305,7 +287,7 @@ def main() -> None:
             "optimum_by_gamma": {str(r["gamma"]): r["mean_return"] for r in optima},
             "learner_mean_policy": bootstrap_mean([r["mean_policy"] for r in configured]),
             "learner_critic_greedy": bootstrap_mean([r["critic_greedy"] for r in configured]),
-            "optimal_advantage": _oracle_summary(learned, a.seeds),
+            "optimal_advantage": _oracle_summary(learned),
         },
     }
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
