@@ -208,3 +208,11 @@ def test_alive_now_asks_the_network_whether_a_token_exists(buses):
     assert _wait(lambda: b.alive_now("learner/abc", timeout=1.0))
     assert not b.alive_now("learner/nobody", timeout=1.0)
     assert a.alive_now("learner/abc", timeout=1.0)  # its own token too
+
+
+def test_alive_now_on_a_closed_session_says_so(endpoint):
+    """robot-io logs this and refuses the reset as it would have without asking (deploy.robot_io_node)."""
+    bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), unique_name("cl"))
+    bus.close()
+    with pytest.raises(ConnectionError, match="liveliness query .*alive/learner/a"):
+        bus.alive_now("learner/a", timeout=0.5)
