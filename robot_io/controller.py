@@ -324,14 +324,17 @@ class RobotController:
         self.backend.step()
         return TickResult(self.state(), applied, self.safety.drain(), [])
 
-    def _anchor(self, q: np.ndarray, q_cmd: np.ndarray | None) -> np.ndarray:
-        """Where this period's action starts: the commanded configuration while the arm tracks it within
-        one step (the action moves the commanded end effector, as on any position-controlled arm), else
-        the measured one, so a blocked arm never lets the command run away from it."""
+    def _anchor(self, q: np.ndarray, q_cmd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Where this period's action starts, and its end-effector position: the commanded configuration
+        while the arm tracks it within one step (the action moves the commanded end effector, as on any
+        position-controlled arm), else the measured one, so a blocked arm never lets the command run
+        away from it."""
+        ee = self.kin.ee_position(q)
         if q_cmd is None:
-            return q
-        gap = float(np.linalg.norm(self.kin.ee_position(q_cmd) - self.kin.ee_position(q)))
-        return q_cmd if gap <= self.config.max_step_m else q
+            return q, ee
+        ee_cmd = self.kin.ee_position(q_cmd)
+        gap = float(np.linalg.norm(ee_cmd - ee))
+        return (q_cmd, ee_cmd) if gap <= self.config.max_step_m else (q, ee)
 
     def _execute(self, action: np.ndarray) -> np.ndarray:
         """Displace the end-effector goal by ``action`` (≤ max_step_m), clip, solve IK, check, send."""
@@ -340,9 +343,9 @@ class RobotController:
         if norm > self.config.max_step_m:
             action = action * (self.config.max_step_m / norm)
         js = self.backend.read_state()
-        q0 = self._anchor(js.q, js.q_cmd)
-        goal = self.safety.clip_goal(self.kin.ee_position(q0) + action)
-        start_error = float(np.linalg.norm(self.kin.ee_position(q0) - goal))
+        q0, ee0 = self._anchor(js.q, js.q_cmd)
+        goal = self.safety.clip_goal(ee0 + action)
+        start_error = float(np.linalg.norm(ee0 - goal))
         result = self.ik.solve(q0, goal, self.config.period)
         # Out of reach: the QP ends far from the goal and cannot get any closer (limits are active).
         stalled = result.error > UNREACHABLE_M and start_error - result.error < 1e-3

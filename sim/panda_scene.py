@@ -128,20 +128,24 @@ class TargetState:
         return m.speed_min + (m.speed_max - m.speed_min) * 0.5 * (1.0 + math.sin(self.phase))
 
     def advance(self, dt: float) -> None:
-        """Move by ``dt`` seconds: drift the heading, swing the speed, reflect at the box walls."""
+        """Move by ``dt`` seconds: drift the heading, swing the speed, reflect at the box walls.
+
+        Runs every physics step (12 a control period), so it avoids numpy's wrappers where a plain call
+        gives the same numbers (``sqrt(h·h)`` is what ``np.linalg.norm`` computes for a vector)."""
         m = self.motion
-        lo, hi = (np.asarray(b, float) for b in m.box)
         # The speed phase itself jitters so the swing is not a pure sinusoid (varying, still bounded).
         self.phase += dt * 2 * math.pi / m.speed_period * (1.0 + 0.5 * self.rng.uniform(-1, 1))
-        self.heading = self.heading + m.turn_rate * math.sqrt(dt) * self.rng.normal(size=3)
-        self.heading /= np.linalg.norm(self.heading)
-        step = self.speed() * self.heading * dt
-        pos = self.position + step
+        heading = self.heading + m.turn_rate * math.sqrt(dt) * self.rng.normal(size=3)
+        heading /= np.sqrt(heading.dot(heading))
+        self.heading = heading
+        pos = self.position + self.speed() * heading * dt
+        lo, hi = m.box
         for axis in range(3):
-            if pos[axis] < lo[axis] or pos[axis] > hi[axis]:
-                wall = np.clip(pos[axis], lo[axis], hi[axis])
-                pos[axis] = np.clip(2 * wall - pos[axis], lo[axis], hi[axis])
-                self.heading[axis] = -self.heading[axis]
+            p, low, high = float(pos[axis]), lo[axis], hi[axis]
+            if p < low or p > high:
+                wall = min(max(p, low), high)
+                pos[axis] = min(max(2 * wall - p, low), high)
+                heading[axis] = -heading[axis]
         self.velocity = (pos - self.position) / dt if dt > 0 else np.zeros(3)
         self.position = pos
 
@@ -315,9 +319,9 @@ class PandaScene:
         """Advance physics and the target by ``n`` time steps."""
         for _ in range(n):
             self.target.advance(self.time_step)
-            self._place_target()
             pb.stepSimulation(physicsClientId=self.client_id)
             self.time += self.time_step
+        self._place_target()  # visual only (no collision shape): no physics step needs it moved sooner
 
     def steps_for(self, seconds: float) -> int:
         """How many physics steps make ``seconds`` (at least one)."""

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from robot_io.config import RobotConfig
-from robot_io.controller import RobotController
+from robot_io.controller import ArmState, RobotController
 from tasks.reach import (
     MAX_STEP_M,
     predict_reach,
@@ -62,8 +62,9 @@ class NSReachEnv(gym.Env):
         self.global_step = 0
         self._steps = 0
 
-    def _observe(self) -> tuple[np.ndarray, float]:
-        state = self.arm.state()
+    def _observe(self, state: ArmState | None = None) -> tuple[np.ndarray, float]:
+        """Observation and distance of ``state`` (default: the arm's now)."""
+        state = self.arm.state() if state is None else state
         target = self.scene.target.position
         obs = reach_observation(state.ee_pos, state.ee_vel, target, self.scene.target_velocity())
         return obs, reach_distance(state.ee_pos, target)
@@ -89,10 +90,10 @@ class NSReachEnv(gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         action = np.clip(np.asarray(action, float).reshape(3), -MAX_STEP_M, MAX_STEP_M)
-        self.arm.step_action(action)
+        tick = self.arm.step_action(action)
         self._steps += 1
         self.global_step += 1
-        obs, distance = self._observe()
+        obs, distance = self._observe(tick.state)  # the state after the period, read once
         info = self._info(distance)
         terminated = bool(self.terminate_on_success and info["success"])
         truncated = self._steps >= self.max_episode_steps

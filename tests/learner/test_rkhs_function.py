@@ -206,3 +206,26 @@ def test_rkhs_function_state_round_trip():
     assert g.error_bound == f.error_bound
     with pytest.raises(ValueError, match="budget"):
         RKHSFunction(kernel, 1, budget=0, ald_threshold=0.1)
+
+
+def test_dictionary_solves_give_scipys_numbers_and_name_a_singular_factor():
+    """The dictionary calls LAPACK directly (scipy's wrappers cost more than the solve): the same numbers
+    as ``solve_triangular`` / ``cho_solve``, bit for bit, and a singular factor is an error, not garbage."""
+    from scipy.linalg import cho_solve, solve_triangular
+
+    from learner.dictionary import _cholesky_solve, _triangular_solve
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(40, 40))
+    chol = np.linalg.cholesky(a @ a.T + 40 * np.eye(40))
+    b = rng.normal(size=40)
+    half = _triangular_solve(chol, b)
+    assert np.array_equal(half, solve_triangular(chol, b, lower=True))
+    back = solve_triangular(chol.T, half, lower=False)
+    assert np.array_equal(_triangular_solve(chol, half, transposed=True), back)
+    assert np.array_equal(_cholesky_solve(chol, b), cho_solve((chol, True), b))
+    assert np.array_equal(_cholesky_solve(chol, np.eye(40)), cho_solve((chol, True), np.eye(40)))
+    singular = chol.copy()
+    singular[7, 7] = 0.0
+    with pytest.raises(np.linalg.LinAlgError, match="zero pivot at 7"):
+        _triangular_solve(singular, b)

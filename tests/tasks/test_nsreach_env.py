@@ -109,3 +109,15 @@ def test_the_plan_model_follows_the_arm_open_loop():
     e.close()
     assert max(tracked) < 0.05
     assert np.mean(tracked) < 0.5 * np.mean(face_value)
+
+
+def test_the_target_marker_is_where_the_target_is_after_every_step(env):
+    """The marker (visual only) is placed once per control period, after the physics steps: the scene the
+    camera renders still shows the target where the observation says it is."""
+    obs, _ = env.reset(seed=11)
+    scene = env.unwrapped.scene
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.01, 0.0, -0.01]))
+        marker, _ = scene.target_pose()
+        np.testing.assert_allclose(marker, scene.target.position, atol=1e-6)
+        np.testing.assert_allclose(obs[6:9], scene.target.position, atol=1e-6)
