@@ -36,7 +36,8 @@ Eight parts, each a list of runs made in fresh processes (``--jobs`` at a time):
 7. ``env_cost`` (every setting, ``--check-seeds`` seeds): the env alone for a run's steps, uniform random
    actions: the wall-clock every method's run pays before it learns anything, against TD3's wall-clock
    per run in ``--paper-summary`` (the issue asks AdaptiveH for 1/10 of TD3's: on a setting whose env
-   alone costs more, no learner can meet it).
+   alone costs more, no learner can meet it), and on NS Reach the part of it spent in the arm's physics
+   and IK (``arm_floor_vs_td3``: what remains with all the glue code gone, the same arm simulated).
 8. ``checks`` (NS CartPole slow and fast, NS Reach; ``--check-seeds`` seeds): the final return of
    ``before``, ``after`` and ``options`` with 95 % bootstrap intervals and the intervals of the
    differences from ``before``; ``after_identical_to_before`` says whether the after-learner replayed
@@ -648,8 +649,27 @@ def noise_run(args: tuple[int, int, int]) -> dict:
     return out
 
 
+def _timed(owner: Any, name: str, spent: dict[str, float], key: str) -> None:
+    """Replace ``owner.name`` by a wrapper that adds its calls' wall-clock to ``spent[key]``."""
+    inner = getattr(owner, name)
+
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        t = time.perf_counter()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            spent[key] += time.perf_counter() - t
+
+    setattr(owner, name, wrapper)
+
+
 def env_cost_run(args: tuple[str, int]) -> dict:
-    """One setting's env alone for a run's steps (seeded uniform random actions), timed as ``learn`` is."""
+    """One setting's env alone for a run's steps (seeded uniform random actions), timed as ``learn`` is,
+    with the part of it spent in the arm's physics (PyBullet's ``stepSimulation``) and its IK (mink's
+    ``solve_ik``): what no faster glue code can remove without simulating a different arm."""
+    import mink
+    import pybullet
+
     from experiments.execute import make_env
     from experiments.plan import ENVS, env_kwargs
 
@@ -658,6 +678,9 @@ def env_cost_run(args: tuple[str, int]) -> dict:
     env = make_env(spec, env_kwargs(spec, seed))
     env.action_space.seed(seed)
     env.reset(seed=seed)
+    spent = {"physics_s": 0.0, "ik_s": 0.0}
+    _timed(pybullet, "stepSimulation", spent, "physics_s")  # this process runs one setting, then exits
+    _timed(mink, "solve_ik", spent, "ik_s")
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(spec.steps):
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
@@ -665,7 +688,7 @@ def env_cost_run(args: tuple[str, int]) -> dict:
             env.reset()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     env.close()
-    return {"env": env_key, "seed": seed, "steps": spec.steps, "wall_s": wall, "cpu_s": cpu}
+    return {"env": env_key, "seed": seed, "steps": spec.steps, "wall_s": wall, "cpu_s": cpu, **spent}
 
 
 def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
@@ -675,13 +698,19 @@ def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
     shown = paper_summary.relative_to(ROOT) if paper_summary.is_relative_to(ROOT) else paper_summary
     out: dict[str, Any] = {"paper_summary": str(shown)}
     for env_key in dict.fromkeys(r["env"] for r in runs):
-        env_s = float(np.mean([r["wall_s"] for r in runs if r["env"] == env_key]))
+        mine = [r for r in runs if r["env"] == env_key]
+        env_s = float(np.mean([r["wall_s"] for r in mine]))
+        arm_s = float(np.mean([r.get("physics_s", np.nan) + r.get("ik_s", np.nan) for r in mine]))
         entry: dict[str, Any] = {"env_only_wall_s_per_run": round(env_s, 2)}
+        if arm_s > 0:  # NS Reach: the arm's physics and IK, the part of the env no glue code can remove
+            entry["arm_physics_ik_s_per_run"] = round(arm_s, 2)
         for algo in ("td3", "adaptiveh"):
             wall = cost.get(algo, {}).get("by_env", {}).get(env_key, {}).get("wall_s_per_run")
             entry[f"{algo}_wall_s_per_run"] = None if wall is None else round(wall, 2)
         if entry["td3_wall_s_per_run"]:
             entry["floor_vs_td3"] = round(env_s / entry["td3_wall_s_per_run"], 3)
+            if arm_s > 0:
+                entry["arm_floor_vs_td3"] = round(arm_s / entry["td3_wall_s_per_run"], 3)
         out[env_key] = entry
     return out
 

@@ -12,8 +12,10 @@ from learner_diagnosis import (  # noqa: E402
     PENDULUM_VARIANTS,
     REACH_BASELINE_VARIANTS,
     REACH_VARIANTS,
+    _env_cost_summary,
     _reach_baselines_summary,
     _reach_summary,
+    _timed,
     _variant_config,
 )
 
@@ -69,3 +71,39 @@ def test_reach_baselines_pair_with_the_paper_td3_and_adaptiveh(tmp_path):
     assert summary["td3_noise_0.05"]["replays_paper_td3"] is False
     assert summary["td3_noise_0.05"]["minus_paper_td3_paired"]["diff"] == pytest.approx(-0.2)
     assert summary["td3_noise_0.05"]["paper_adaptiveh_minus_this_paired"]["diff"] == pytest.approx(0.2)
+
+
+def test_env_cost_names_the_arms_share_and_its_floor_against_td3(tmp_path):
+    """The floor any learner faces on NS Reach: the env alone, and the arm's physics and IK inside it;
+    a setting without an arm (CartPole) gets no arm entry, and a run recorded before the split none."""
+    paper = tmp_path / "summary.json"
+    by_env = {"reach_slow": {"wall_s_per_run": 200.0}, "cartpole_slow": {"wall_s_per_run": 300.0}}
+    paper.write_text(json.dumps({"cost": {"td3": {"by_env": by_env}}}))
+    runs = [
+        {"env": "reach_slow", "wall_s": 20.0, "physics_s": 9.0, "ik_s": 4.0},
+        {"env": "reach_slow", "wall_s": 22.0, "physics_s": 11.0, "ik_s": 4.0},
+        {"env": "cartpole_slow", "wall_s": 1.0, "physics_s": 0.0, "ik_s": 0.0},
+        {"env": "cartpole_fast", "wall_s": 1.5},
+    ]
+    out = _env_cost_summary(runs, paper)
+    reach = out["reach_slow"]
+    assert reach["env_only_wall_s_per_run"] == 21.0 and reach["arm_physics_ik_s_per_run"] == 14.0
+    assert reach["floor_vs_td3"] == 0.105 and reach["arm_floor_vs_td3"] == 0.07
+    assert "arm_floor_vs_td3" not in out["cartpole_slow"] and out["cartpole_slow"]["floor_vs_td3"] == 0.003
+    assert "arm_physics_ik_s_per_run" not in out["cartpole_fast"]
+
+
+def test_timed_adds_each_calls_time_and_keeps_its_result_and_errors():
+    class Owner:
+        @staticmethod
+        def work(x: int) -> int:
+            if x < 0:
+                raise ValueError("negative")
+            return 2 * x
+
+    spent = {"work_s": 0.0}
+    _timed(Owner, "work", spent, "work_s")
+    assert Owner.work(3) == 6
+    with pytest.raises(ValueError, match="negative"):
+        Owner.work(-1)
+    assert spent["work_s"] > 0.0
