@@ -209,16 +209,21 @@ class SB3Agent:
 
     def _build(self) -> BaseAlgorithm:
         cfg = self.config
-        common = {"seed": self.seed, "device": "cpu", "verbose": 0}
+        common = {
+            "seed": self.seed,
+            "device": "cpu",
+            "verbose": 0,
+            "learning_rate": cfg.learning_rate,
+            "gamma": cfg.gamma,
+            "batch_size": cfg.batch_size,
+            "policy_kwargs": {"net_arch": list(cfg.net_arch)},
+        }
         if isinstance(cfg, PPOConfig):
             return PPO(
                 "MlpPolicy",
                 self.env,
-                learning_rate=cfg.learning_rate,
                 n_steps=cfg.n_steps,
-                batch_size=cfg.batch_size,
                 n_epochs=cfg.n_epochs,
-                gamma=cfg.gamma,
                 gae_lambda=cfg.gae_lambda,
                 clip_range=cfg.clip_range,
                 ent_coef=cfg.ent_coef,
@@ -226,24 +231,22 @@ class SB3Agent:
                 max_grad_norm=cfg.max_grad_norm,
                 use_sde=cfg.use_sde,
                 sde_sample_freq=cfg.sde_sample_freq,
-                policy_kwargs={"net_arch": list(cfg.net_arch)},
                 **common,
             )
+        # What the off-policy learners share: a replay buffer, Polyak targets, gradient steps per update.
+        common |= {
+            "buffer_size": cfg.buffer_size,
+            "learning_starts": cfg.learning_starts,
+            "tau": cfg.tau,
+            "gradient_steps": cfg.gradient_steps,
+        }
         if isinstance(cfg, SACConfig):
             return self._model_class()(
                 "MlpPolicy",
                 self.env,
-                learning_rate=cfg.learning_rate,
-                buffer_size=cfg.buffer_size,
-                learning_starts=cfg.learning_starts,
-                batch_size=cfg.batch_size,
-                tau=cfg.tau,
-                gamma=cfg.gamma,
                 train_freq=cfg.train_freq,
-                gradient_steps=cfg.gradient_steps,
                 ent_coef=cfg.ent_coef,
                 use_sde=cfg.use_sde,
-                policy_kwargs={"net_arch": list(cfg.net_arch)},
                 **common,
             )
         n_act = int(np.prod(self.env.action_space.shape))
@@ -251,19 +254,9 @@ class SB3Agent:
         return self._model_class()(
             "MlpPolicy",
             self.env,
-            learning_rate=cfg.learning_rate,
-            buffer_size=cfg.buffer_size,
-            learning_starts=cfg.learning_starts,
-            batch_size=cfg.batch_size,
-            tau=cfg.tau,
-            gamma=cfg.gamma,
             train_freq=(cfg.train_freq_episodes, "episode"),
-            gradient_steps=cfg.gradient_steps,
             action_noise=noise,
-            policy_kwargs={"net_arch": list(cfg.net_arch)},
-            seed=self.seed,
-            device="cpu",
-            verbose=0,
+            **common,
         )
 
     def learn(self, total_steps: int, callback: StepCallback | None = None) -> RunLog:
