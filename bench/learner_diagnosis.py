@@ -70,7 +70,8 @@ import os
 import resource
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -649,8 +650,9 @@ def noise_run(args: tuple[int, int, int]) -> dict:
     return out
 
 
-def _timed(owner: Any, name: str, spent: dict[str, float], key: str) -> None:
-    """Replace ``owner.name`` by a wrapper that adds its calls' wall-clock to ``spent[key]``."""
+@contextmanager
+def _timed(owner: Any, name: str, spent: dict[str, float], key: str) -> Iterator[None]:
+    """Inside the block, ``owner.name`` adds its calls' wall-clock to ``spent[key]``; restored after."""
     inner = getattr(owner, name)
 
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -661,6 +663,10 @@ def _timed(owner: Any, name: str, spent: dict[str, float], key: str) -> None:
             spent[key] += time.perf_counter() - t
 
     setattr(owner, name, wrapper)
+    try:
+        yield
+    finally:
+        setattr(owner, name, inner)
 
 
 def env_cost_run(args: tuple[str, int]) -> dict:
@@ -679,14 +685,13 @@ def env_cost_run(args: tuple[str, int]) -> dict:
     env.action_space.seed(seed)
     env.reset(seed=seed)
     spent = {"physics_s": 0.0, "ik_s": 0.0}
-    _timed(pybullet, "stepSimulation", spent, "physics_s")  # this process runs one setting, then exits
-    _timed(mink, "solve_ik", spent, "ik_s")
-    t0, c0 = time.perf_counter(), time.process_time()
-    for _ in range(spec.steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        if terminated or truncated:
-            env.reset()
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    with _timed(pybullet, "stepSimulation", spent, "physics_s"), _timed(mink, "solve_ik", spent, "ik_s"):
+        t0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(spec.steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     env.close()
     return {"env": env_key, "seed": seed, "steps": spec.steps, "wall_s": wall, "cpu_s": cpu, **spent}
 

@@ -93,7 +93,7 @@ def test_env_cost_names_the_arms_share_and_its_floor_against_td3(tmp_path):
     assert "arm_physics_ik_s_per_run" not in out["cartpole_fast"]
 
 
-def test_timed_adds_each_calls_time_and_keeps_its_result_and_errors():
+def test_timed_adds_each_calls_time_keeps_its_result_and_errors_and_restores_it():
     class Owner:
         @staticmethod
         def work(x: int) -> int:
@@ -101,9 +101,11 @@ def test_timed_adds_each_calls_time_and_keeps_its_result_and_errors():
                 raise ValueError("negative")
             return 2 * x
 
+    original = Owner.work
     spent = {"work_s": 0.0}
-    _timed(Owner, "work", spent, "work_s")
-    assert Owner.work(3) == 6
-    with pytest.raises(ValueError, match="negative"):
-        Owner.work(-1)
+    with _timed(Owner, "work", spent, "work_s"):
+        assert Owner.work(3) == 6
+        with pytest.raises(ValueError, match="negative"):
+            Owner.work(-1)
     assert spent["work_s"] > 0.0
+    assert Owner.work is original  # restored: a second measurement in the same process wraps it once
