@@ -572,7 +572,6 @@ def _critic_vs_mc(rec: dict, gamma: float, every: int, steps: int) -> list[dict]
 def plain_run(args: tuple) -> dict:
     """One run of AdaptiveH (or, with a sixth element, of that algorithm on its paper-bench config plus
     the overrides) as the paper bench runs it, uninstrumented."""
-
     env_key, variant, overrides, seed, steps, *rest = args
     algo = rest[0] if rest else "adaptiveh"
     cfg = _variant_config(env_key, overrides, algo)
@@ -618,7 +617,6 @@ def plain_run(args: tuple) -> dict:
 
 def noise_run(args: tuple[int, int, int]) -> dict:
     """The configured NS Pendulum learner, then its frozen policy on paired fresh episodes."""
-
     seed, steps, episodes = args
     cfg = _variant_config("pendulum_slow", {})
     env, agent = _build("pendulum_slow", seed, cfg)
@@ -705,9 +703,12 @@ def _env_cost_summary(runs: list[dict], paper_summary: Path) -> dict:
     for env_key in dict.fromkeys(r["env"] for r in runs):
         mine = [r for r in runs if r["env"] == env_key]
         env_s = float(np.mean([r["wall_s"] for r in mine]))
-        arm_s = float(np.mean([r.get("physics_s", np.nan) + r.get("ik_s", np.nan) for r in mine]))
+        # NS Reach: the arm's physics and IK, the part of the env no glue code can remove (none for an env
+        # without an arm, or runs recorded before the split)
+        timed = all("physics_s" in r for r in mine)
+        arm_s = float(np.mean([r["physics_s"] + r["ik_s"] for r in mine])) if timed else 0.0
         entry: dict[str, Any] = {"env_only_wall_s_per_run": round(env_s, 2)}
-        if arm_s > 0:  # NS Reach: the arm's physics and IK, the part of the env no glue code can remove
+        if arm_s > 0:
             entry["arm_physics_ik_s_per_run"] = round(arm_s, 2)
         for algo in ("td3", "adaptiveh"):
             wall = cost.get(algo, {}).get("by_env", {}).get(env_key, {}).get("wall_s_per_run")

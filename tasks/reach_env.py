@@ -62,9 +62,8 @@ class NSReachEnv(gym.Env):
         self.global_step = 0
         self._steps = 0
 
-    def _observe(self, state: ArmState | None = None) -> tuple[np.ndarray, float]:
-        """Observation and distance of ``state`` (default: the arm's now)."""
-        state = self.arm.state() if state is None else state
+    def _observe(self, state: ArmState) -> tuple[np.ndarray, float]:
+        """Observation and distance of the arm's ``state`` (the one its last call returned: read once)."""
         target = self.scene.target.position
         obs = reach_observation(state.ee_pos, state.ee_vel, target, self.scene.target_velocity())
         return obs, reach_distance(state.ee_pos, target)
@@ -81,11 +80,11 @@ class NSReachEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Home pose; the target keeps moving unless ``seed`` asks for a new target motion."""
         super().reset(seed=seed)
-        self.arm.reset()
+        state = self.arm.reset()
         if seed is not None:
-            self.scene.reset_target(seed)
+            self.scene.reset_target(seed)  # the target only: the arm's state stands
         self._steps = 0
-        obs, distance = self._observe()
+        obs, distance = self._observe(state)
         return obs, self._info(distance)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
@@ -93,7 +92,7 @@ class NSReachEnv(gym.Env):
         tick = self.arm.step_action(action)
         self._steps += 1
         self.global_step += 1
-        obs, distance = self._observe(tick.state)  # the state after the period, read once
+        obs, distance = self._observe(tick.state)
         info = self._info(distance)
         terminated = bool(self.terminate_on_success and info["success"])
         truncated = self._steps >= self.max_episode_steps
