@@ -7,7 +7,8 @@ publisher cannot put the wrong type on a key and a subscriber never names the ty
 
 Protobuf's parser is lenient (unknown fields are kept, NaN is a valid double, any integer is a valid
 enum), so :func:`decode` adds the checks a robot needs: no unknown fields, every double finite, every
-enum set to a known value, vector lengths as the schema's ``length`` options declare. Its
+enum set to a known value, vector lengths as the schema's ``length`` options declare, every stamp a time
+Foxglove can show. Its
 ``MessageError`` names the field, so a node logs it and keeps running.
 """
 
@@ -48,7 +49,12 @@ R = TypeVar("R", bound=Message)
 
 
 class MessageError(ValueError):
-    """Bytes that are not a valid message of the expected type; the text names the field."""
+    """Bytes that are not a valid message of the expected type; the text names the field. ``reason``
+    groups errors for rate-limited reporting: undecodable, invalid, forged, replayed."""
+
+    def __init__(self, text: str, reason: str = "invalid") -> None:
+        super().__init__(text)
+        self.reason = reason
 
 
 def key(robot: str, topic: str) -> str:
@@ -123,6 +129,11 @@ def topic_of_key(k: str) -> Topic[Any] | None:
 
 # -- strict decoding ----------------------------------------------------------------------------------
 _FLOATS = (FieldDescriptor.TYPE_DOUBLE, FieldDescriptor.TYPE_FLOAT)
+STAMP_MAX_S = 2.0**32  # Foxglove's Timestamp holds seconds in a uint32: a later stamp cannot be shown
+
+
+def _is_stamp(fd: FieldDescriptor) -> bool:
+    return fd.type in _FLOATS and not fd.is_repeated and (fd.name == "stamp" or fd.name.endswith("_stamp"))
 
 
 def _check_length(fd: FieldDescriptor, values: Sequence[Any], where: str) -> None:
@@ -158,6 +169,8 @@ def validate(msg: Message, where: str | None = None) -> None:
             _check_length(fd, values, path)
         if fd.type in _FLOATS and not all(math.isfinite(x) for x in values):
             raise MessageError(f"{path}: contains NaN or inf")
+        if _is_stamp(fd) and not 0.0 <= value < STAMP_MAX_S:
+            raise MessageError(f"{path}: {value!r} s is not a time in [0, 2^32) s")
         if fd.type == FieldDescriptor.TYPE_ENUM:
             _check_enum(fd, values, path)
         if fd.type == FieldDescriptor.TYPE_MESSAGE:
@@ -166,13 +179,24 @@ def validate(msg: Message, where: str | None = None) -> None:
                 validate(sub, f"{path}[{i}]" if fd.is_repeated else path)
 
 
+def says_estop(data: bytes | bytearray | memoryview) -> bool:
+    """``data`` parses as a ``Control`` whose command is an e-stop, whatever else is wrong with it (fields
+    of the wrong length, NaNs, unknown fields, no or a wrong mac): a stop request is never refused."""
+    msg = Control()
+    try:
+        msg.ParseFromString(bytes(data))
+    except DecodeError:
+        return False
+    return msg.command == Control.ESTOP
+
+
 def decode(data: bytes | bytearray | memoryview, cls: type[M]) -> M:
     """Parse and validate ``data`` as ``cls``; every failure is a MessageError naming the field."""
     msg = cls()
     try:
         msg.ParseFromString(bytes(data))
     except DecodeError as exc:
-        raise MessageError(f"{cls.__name__}: undecodable ({len(data)} bytes): {exc}") from None
+        raise MessageError(f"{cls.__name__}: undecodable ({len(data)} bytes): {exc}", "undecodable") from None
     validate(msg)
     return msg
 

@@ -2,9 +2,11 @@
 
 Every part of ``adaptiveh up`` gets the operator token through its environment. Messages that steer the
 arm or that the learner trusts as the arm's account (``ActionChunk``, ``ResetRequest``, ``Control``,
-``RobotState``, ``ChunkStatus``) carry ``mac``: HMAC-SHA256 of the message serialized with ``mac``
-empty. A peer without the token, or an altered copy of genuine traffic, does not verify; an exact copy
-does, so receivers also refuse what is not new (chunk numbers, control and reset stamps).
+``RobotState``, ``ChunkStatus``, and what the operator's views show: ``Target``, ``LearnerTelemetry``,
+``RetreatEvent``, ``SafetyEvent``) carry ``mac``: HMAC-SHA256 of the message's type name and the message
+serialized with ``mac`` empty. A peer without the token, or an altered copy of genuine traffic, does not
+verify; an exact copy does, so receivers also refuse what is not new (chunk numbers, control and reset
+stamps; every other signed message through ``Verifier``'s replay guard).
 
 The key is derived from the token, never the token itself, and the token is never on the bus: a
 ``Control`` proves it knows the token by its ``mac`` (a token in clear, as before, let any peer that saw
@@ -24,8 +26,8 @@ KEY_CONTEXT = b"adaptiveh message mac v1"
 class ForgedMessage(MessageError):
     """A message that decoded but is not signed with the stack's key; ``msg`` is what it claimed."""
 
-    def __init__(self, what: str, msg: Message) -> None:
-        super().__init__(what)
+    def __init__(self, what: str, msg: Message, reason: str = "forged") -> None:
+        super().__init__(what, reason)
         self.msg = msg
 
 
@@ -40,9 +42,13 @@ def signed(cls: type[Message]) -> bool:
 
 
 def _mac(msg: Message, key: bytes) -> bytes:
+    """HMAC of the message's type name, then its bytes: the bytes of one type can parse as another (a
+    signed SafetyEvent read as a Control parsed as a RELEASE), so a mac is only ever valid for its type."""
     mac, msg.mac = msg.mac, b""
     try:
-        return hmac.new(key, msg.SerializeToString(deterministic=True), hashlib.sha256).digest()
+        signer = hmac.new(key, msg.DESCRIPTOR.full_name.encode() + b"\0", hashlib.sha256)
+        signer.update(msg.SerializeToString(deterministic=True))
+        return signer.digest()
     finally:
         msg.mac = mac
 
@@ -69,3 +75,40 @@ class Fresh:
             return False
         self.last = stamp
         return True
+
+
+class ReplayGuard:
+    """Refuses an exact copy of a signed message it let through (a stranger replaying genuine retreat or
+    safety events would inflate the operator's counts): remembers the newest ``size`` macs, and refuses a
+    stamp older than any it has forgotten (it could no longer tell a copy from an original). Each put has
+    its own seq and stamp, so genuine traffic never repeats a mac."""
+
+    def __init__(self, size: int = 4096) -> None:
+        self.size = size
+        self.floor = 0.0
+        self._seen: dict[bytes, float] = {}
+
+    def __call__(self, mac: bytes, stamp: float) -> bool:
+        if stamp < self.floor or mac in self._seen:
+            return False
+        self._seen[mac] = stamp
+        if len(self._seen) > self.size:
+            oldest = next(iter(self._seen))
+            self.floor = max(self.floor, self._seen.pop(oldest))
+        return True
+
+
+class Verifier:
+    """What a reader of signed messages believes: signed with the stack's ``key`` and not a copy of one
+    already believed. One per subscription (each sees every message once)."""
+
+    def __init__(self, key: bytes) -> None:
+        self.key = key
+        self._new = ReplayGuard()
+
+    def check(self, where: str, msg: Message) -> None:
+        """Raise ForgedMessage (naming ``where``) unless ``msg`` is authentic and new."""
+        if not authentic(msg, self.key):
+            raise ForgedMessage(f"{where}: not signed with the stack's key", msg)
+        if not self._new(msg.mac, getattr(msg, "stamp", 0.0)):
+            raise ForgedMessage(f"{where}: a copy of a message already seen (a replay)", msg, "replayed")

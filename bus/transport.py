@@ -24,8 +24,9 @@ from pydantic import Field, model_validator
 from bus import messages, security
 from bus.messages import Message, MessageError, Service, Topic
 from bus.security import AuthConfig, RouterConfig, TlsConfig
-from bus.signing import ForgedMessage, authentic, sign, signed
+from bus.signing import Verifier, sign, signed
 from common.config import Section
+from common.throttle import ReportThrottle
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
@@ -220,7 +221,8 @@ class Bus:
         self.session = session
         self.robot = robot
         self.signing_key = key
-        self.bad_messages: dict[str, int] = {}
+        self.bad_messages: dict[str, int] = {}  # per topic: undecodable, invalid, forged or replayed
+        self._reports = ReportThrottle()  # one log line per topic and reason per interval, not per message
         self.renewals = 0  # sessions reopened after a stall (``open``)
         self._lock = threading.Lock()
         self._declared: list[_Declared] = []
@@ -346,10 +348,14 @@ class Bus:
     def key(self, topic: Topic[Any] | Service[Any, Any] | str) -> str:
         return messages.key(self.robot, topic if isinstance(topic, str) else topic.name)
 
-    def _bad(self, name: str, exc: Exception) -> None:
+    def report_bad(self, name: str, exc: Exception) -> None:
+        """Count a bad message on topic ``name`` and log it, rate-limited per key and reason (a part that
+        judges messages itself, such as robot-io's commands, reports its refusals here too)."""
         with self._lock:
             self.bad_messages[name] = self.bad_messages.get(name, 0) + 1
-        log.warning("bad message on %s: %s", self.key(name), exc)
+            line = self._reports.report(self.key(name), getattr(exc, "reason", type(exc).__name__), str(exc))
+        if line is not None:
+            log.warning("bad message on %s: %s", self.key(name), line)
 
     def publisher(
         self,
@@ -404,22 +410,23 @@ class Bus:
         self,
         topic: Topic[M],
         callback: Callable[[M], None],
-        on_bad: Callable[[str, Exception], None] | None = None,
+        on_bad: Callable[[str, Exception, bytes], None] | None = None,
         verify: bool = True,
     ) -> None:
-        """Call ``callback`` with each decoded (and, with a key, authentic) message; bad bytes are logged,
-        counted and reported to ``on_bad``."""
-        key = self.signing_key if verify and signed(topic.type) else None
+        """Call ``callback`` with each decoded (and, with a key, authentic and new) message; bad bytes are
+        counted, logged (rate-limited) and reported to ``on_bad`` (topic, error, the bytes)."""
+        verifier = Verifier(self.signing_key) if verify and self.signing_key and signed(topic.type) else None
 
         def handler(sample: zenoh.Sample) -> None:
+            data = sample.payload.to_bytes()
             try:
-                msg = topic.decode(sample.payload.to_bytes())
-                if key is not None and not authentic(msg, key):
-                    raise ForgedMessage(f"{topic.name}: not signed with the stack's key", msg)
+                msg = topic.decode(data)
+                if verifier is not None:
+                    verifier.check(topic.name, msg)
             except MessageError as exc:
-                self._bad(topic.name, exc)
+                self.report_bad(topic.name, exc)
                 if on_bad is not None:
-                    on_bad(topic.name, exc)
+                    on_bad(topic.name, exc, data)
                 return
             try:
                 callback(msg)
@@ -436,7 +443,7 @@ class Bus:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 request = messages.decode(payload, service.request)
             except MessageError as exc:
-                self._bad(service.name, exc)
+                self.report_bad(service.name, exc)
                 query.reply_err(str(exc).encode())
                 return
             try:

@@ -20,6 +20,7 @@ from common.config import Box3, ConfigError, Section, describe, load_yaml, parse
 from learner.config import AGENT_CONFIGS
 from learner.registry import Algo
 from monitor.server import MonitorConfig
+from monitor.view_limits import ViewLimits
 from robot_io.config import RobotConfig
 from vision.config import VisionConfig
 
@@ -84,6 +85,13 @@ class LearnerConfig(Section):
             raise ValueError(f"execution plan: algo {self.algo} has no plan mode")
         return self
 
+    @property
+    def longest_segment(self) -> int | None:
+        """No segment of this learner is longer (its h_max or fixed H); None for one without segments."""
+        agent = AGENT_CONFIGS[self.algo].model_validate(self.agent)
+        bounds = [getattr(agent, name) for name in ("h_max", "fixed_h") if hasattr(agent, name)]
+        return max(bounds) if bounds else None
+
     def agent_config(self, period_s: float) -> dict[str, Any]:
         """``agent`` with the execution mode; in plan mode the agent plans ahead over the actions that
         play during the latency (``latency_steps``: latency_ms in control periods, rounded up), while the
@@ -138,6 +146,10 @@ class StackConfig(Section):
     monitor: MonitorConfig | None = None
     recording: RecordingConfig = RecordingConfig()
     supervisor: SupervisorConfig = SupervisorConfig()
+
+    def view_limits(self) -> ViewLimits:
+        """What the operator's views of this stack will plot (``monitor.view_limits``)."""
+        return ViewLimits(self.learner.longest_segment)
 
     @model_validator(mode="after")
     def _sim_camera_needs_sim_arm(self) -> StackConfig:

@@ -26,7 +26,7 @@ import numpy as np
 
 from bus import messages as m
 from bus.node import Node
-from bus.signing import Fresh, authentic
+from bus.signing import ForgedMessage, Fresh, authentic
 from common.heap import release_free_heap
 from deploy.config import StackConfig
 from deploy.plan_channel import PlanDrop
@@ -128,7 +128,8 @@ class LearnerNode(Node):
             return
         key = self.bus.signing_key
         if key is not None and not (authentic(msg, key) and self._fresh_control(msg.stamp)):
-            log.warning("control %s ignored: not signed with the stack's key, or a replay", command)
+            why = f"control {command} ignored: not signed with the stack's key, or a replay"
+            self.bus.report_bad(m.CONTROL.name, ForgedMessage(why, msg))
             return
         if command == "pause":
             self._paused.set()
@@ -240,6 +241,7 @@ class LearnerNode(Node):
             "dropped_planned": self.env.book.dropped_planned,
             "dropped_planned_moving": self.env.book.dropped_moving,
             "suspended_ticks": self.env.suspended_ticks,
+            "robot_restarts": self.env.robot_restarts,
             "retreat_preemptions": self.retreat_preemptions,
             "retreat_dropped": self.retreat_dropped,
             "retreat_dropped_moving": self.retreat_dropped_moving,

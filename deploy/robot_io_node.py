@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import os
+import secrets
 import threading
 import time
 from collections.abc import Callable
@@ -44,9 +45,11 @@ log = logging.getLogger(__name__)
 LIVELINESS_QUERY_S = 1.0  # how long a reset waits for the network to confirm its session's token
 
 
-def robot_state_message(s: ArmState, stamp: float = 0.0) -> m.RobotState:
-    """The state message of ``s``; a publisher stamps it when it is put, a reset reply with ``stamp``."""
+def robot_state_message(s: ArmState, instance: str, stamp: float = 0.0) -> m.RobotState:
+    """The state message of ``s`` from robot-io ``instance``; a publisher stamps it when it is put, a
+    reset reply with ``stamp``."""
     return m.RobotState(
+        instance=instance,
         stamp=stamp,
         q=s.q.tolist(),
         dq=s.dq.tolist(),
@@ -105,6 +108,7 @@ class RobotIONode(Node):
         self.settings = settings
         self.controller = controller or _controller(settings.robot)
         self.period = settings.robot.period
+        self.instance = secrets.token_hex(6)  # RobotState.instance: this process, not the one before it
         self.watch_peers = watch_peers
         self._fresh_reset, self._fresh_control = Fresh(), Fresh()
         self._bad_events = EventThrottle("bad messages")
@@ -132,7 +136,11 @@ class RobotIONode(Node):
         return getattr(self.controller.backend, "scene", None)
 
     # -- Zenoh callbacks (Zenoh threads) -------------------------------------------------------------
-    def _on_bad(self, topic: str, exc: Exception) -> None:
+    def _on_bad(self, topic: str, exc: Exception, data: bytes = b"") -> None:
+        # A stop request is obeyed whatever else is wrong with it (fields, session, signature).
+        if topic == m.CONTROL.name and m.says_estop(data):
+            self.controller.operator("estop", np.zeros(3))
+            self._wake.set()
         # A plan that does not even decode: refused whole, the arm holds. Not with a token: bytes that do
         # not decode cannot be shown to be the learner's, and a stranger's must not stop its plan.
         if topic == m.CMD_CHUNK.name and self.mac_key is None:
@@ -182,8 +190,9 @@ class RobotIONode(Node):
             if not why and not self._fresh_control(msg.stamp):
                 why = "not newer than the last one obeyed (a replay)"
             if why:
-                log.warning("control %s refused: %s", command, why)
-                self._on_bad(m.CONTROL.name, ForgedMessage(f"{command}: {why}", msg))
+                refusal = ForgedMessage(f"control {command}: {why}", msg)
+                self.bus.report_bad(m.CONTROL.name, refusal)
+                self._on_bad(m.CONTROL.name, refusal)
                 return
         self.controller.operator(command, np.asarray(msg.jog))
         self._wake.set()
@@ -252,7 +261,7 @@ class RobotIONode(Node):
                     chunk_stamp=report.chunk_stamp,
                 )
             )
-        self._pub_state(robot_state_message(result.state))
+        self._pub_state(robot_state_message(result.state, self.instance))
         if self._pub_truth is not None:
             scene = self.scene
             self._pub_truth(
@@ -275,7 +284,7 @@ class RobotIONode(Node):
             try:
                 self.controller.take_over(request.session)  # a reset is how a learner session takes over
                 state = self.controller.reset(seed)
-                reply = m.ResetReply(ok=True, state=robot_state_message(state, time.time()))
+                reply = m.ResetReply(ok=True, state=robot_state_message(state, self.instance, time.time()))
             except (TakeoverRefused, ArmHeld) as exc:  # a foreign session (a safety event), or held
                 reply = m.ResetReply(ok=False, detail=f"reset refused: {exc}")
             except Exception as exc:

@@ -28,10 +28,12 @@ import zenoh
 
 from bus import messages as m
 from bus.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
+from bus.signing import mac_key
 from bus.transport import Bus, open_session
 from common.heap import ALLOCATOR_ENV
 from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
+from deploy.run_report import learning_curve
 from learner.run_summary import h_stats
 from monitor.foxglove.derive import Deriver, SceneSetup
 from monitor.recording import Recorder, parts
@@ -133,6 +135,8 @@ class Stack:
         self.foxglove_url = ""  # the monitor's Foxglove live view, when it serves one
         self.recording_path: Path | None = None
         self.recording_lost: int | None = None  # messages the recorder missed and could not get back
+        self.limits = self.cfg.view_limits()
+        self.bus: Bus | None = None  # the supervisor's own, while it runs
 
     def part_commands(self) -> dict[str, list[str]]:
         """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
@@ -230,7 +234,8 @@ class Stack:
                 f"cannot open the Zenoh bus ({exc}); if {zc.hub} is taken another stack runs here:"
                 " stop it or set zenoh.hub to a free port"
             ) from None
-        bus = Bus(session, self.name)
+        # With the stack's key: the progress line and the summary believe only what the parts signed.
+        bus = self.bus = Bus(session, self.name, mac_key(self.token))
         recorder = None
         if self.recording.enabled:
             self.recording_path = (
@@ -241,9 +246,10 @@ class Stack:
                 self.name,
                 self.recording_path,
                 self.recording.exclude,
-                deriver=Deriver(self.name, SceneSetup.from_vision(self.cfg.vision)),
+                deriver=Deriver(self.name, SceneSetup.from_vision(self.cfg.vision), self.limits),
                 flush_s=self.recording.flush_s,
                 split_s=self.recording.split_s,
+                key=bus.signing_key,
             )
         bus.subscribe(m.EVENTS_RETREAT, self._on_segment)
         bus.subscribe(m.EVENTS_SAFETY, lambda e: self.safety_kinds.update([m.label(e, "kind")]))
@@ -276,9 +282,25 @@ class Stack:
                 recorder.close()
                 self.recording_lost = recorder.lost
             bus.close()
-        return self.summary(time.monotonic() - t0)
+        return self._write_report(self.summary(time.monotonic() - t0))
+
+    def _write_report(self, summary: dict[str, Any]) -> dict[str, Any]:
+        """The summary as JSON and the learning curve as PNG, beside the recording (else the run's folder)."""
+        stem = self.recording_path.with_suffix("") if self.recording_path else self.run_dir / self.name
+        result_path = Path(summary["learner_result"])
+        result = json.loads(result_path.read_text()) if result_path.exists() else {}
+        curve = learning_curve(result, stem.with_name(stem.name + ".learning.png"))
+        summary["learning_curve"] = str(curve) if curve else None
+        path = summary["summary_file"] = str(stem.with_name(stem.name + ".summary.json"))
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        Path(path).write_text(json.dumps(summary, indent=1))
+        return summary
 
     def _on_segment(self, e: m.RetreatEvent) -> None:
+        problem = self.limits.problem(e)
+        if problem is not None:
+            self.bus.report_bad(m.EVENTS_RETREAT.name, m.MessageError(problem, "out_of_range"))
+            return
         self.segment_h.update([e.H])
         self.reasons.update([m.label(e, "reason")])
 
@@ -333,6 +355,8 @@ class Stack:
             "retreat_preemptions": result.get("retreat_preemptions"),
             "retreat_dropped": result.get("retreat_dropped"),
             "safety_events": dict(self.safety_kinds),
+            # Unsigned, replayed, undecodable or out-of-range messages the supervisor did not count
+            "rejected_messages": dict(self.bus.bad_messages) if self.bus is not None else {},
             "recording": str(self.recording_path) if self.recording_path else None,
             "recording_parts": [str(p) for p in parts(self.recording_path)] if self.recording_path else None,
             "recording_lost": self.recording_lost,

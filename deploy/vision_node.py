@@ -158,8 +158,8 @@ class VisionNode(Node):
             self._pending = item
             self._wake.notify()
 
-    def _on_bad(self, topic: str, exc: Exception) -> None:
-        self.event("bad_message", f"{topic}: {exc}", key=topic)
+    def _on_bad(self, topic: str, exc: Exception, data: bytes = b"") -> None:
+        self.event("bad_message", f"{topic}: {exc}", key=topic, logged=False)
 
     def _capture_loop(self) -> None:
         assert self.camera is not None
@@ -173,11 +173,12 @@ class VisionNode(Node):
             self._offer(frame)
 
     # -- outputs -----------------------------------------------------------------------------------
-    def event(self, kind: str, detail: str, key: str | None = None) -> None:
+    def event(self, kind: str, detail: str, key: str | None = None, logged: bool = True) -> None:
         """Publish ``events/safety`` (kind, ``vision: detail``), at most once a second per ``key``.
 
         ``key`` (default: the detail) groups repeats of one problem, so a camera stuck on bad frames
         sends one event a second with a count, while a different problem is reported at once.
+        ``logged``: also a log line (not for bad messages: the bus logs those, rate-limited per minute).
         """
         now = time.monotonic()
         key = f"{kind}:{key if key is not None else detail}"
@@ -188,7 +189,8 @@ class VisionNode(Node):
                 return
             self._events[key] = (now, 0)
         more = f" (+{suppressed} more since the last report)" if suppressed else ""
-        log.warning("vision %s: %s%s", kind, detail, more)
+        if logged:
+            log.warning("vision %s: %s%s", kind, detail, more)
         kind_value = m.enum(m.SafetyEvent, "kind", kind)
         self._pub_event(m.SafetyEvent(kind=kind_value, detail=f"vision: {detail}{more}", held=False))
 

@@ -158,6 +158,9 @@ class ZenohReachEnv(gym.Env):
         self._played: set[tuple[int, float]] = set()  # chunks a tick of ours played an action of
         self._taken_over_by = ""
         self._obeyed_since_tick: int | None = None  # the tick of our takeover (reset); None before it
+        self._instance = ""  # the robot-io process whose states these are (RobotState.instance)
+        self.robot_restarts = 0  # robot-io processes that replaced the one before (each ends an episode)
+        self._restarted = False  # a new robot-io since the last step: the episode ends, a reset takes over
         self.target_topic = m.TOPICS[settings.target_topic]
         bus.subscribe(m.STATE, self._on_state)
         bus.subscribe(self.target_topic, self._on_target)
@@ -167,6 +170,8 @@ class ZenohReachEnv(gym.Env):
     # -- Zenoh callbacks -----------------------------------------------------------------------------
     def _on_state(self, msg: m.RobotState) -> None:
         with self._cond:
+            if msg.instance != self._instance:
+                self._new_robot_io(msg.instance)
             self._state = msg
             self._state_count += 1
             if msg.played_chunk >= 0 and not self.plan_mode and self.session.mine(msg):
@@ -178,6 +183,25 @@ class ZenohReachEnv(gym.Env):
                 self._buffered_tick = msg.tick
                 self._ticks.append((msg, self._target))
             self._cond.notify_all()
+
+    def _new_robot_io(self, instance: str) -> None:
+        """A robot-io process that is not the one before (a restart): its ticks count from 0 and it obeys
+        no session yet, so the tick bookkeeping starts over and the episode ends at the next step (the
+        reset that follows takes the new process over). Caller holds the lock."""
+        if self._instance:
+            log.warning("robot-io restarted (%s after %s): ending the episode", instance, self._instance)
+            self.robot_restarts += 1
+            self._restarted = True
+        self._instance = instance
+        self._buffered_tick = -1
+        self._obeyed_since_tick = None
+        self._ticks.clear()
+
+    def _consume_restart(self) -> bool:
+        """Whether robot-io restarted since the last call (then this step ends the episode)."""
+        with self._cond:
+            restarted, self._restarted = self._restarted, False
+        return restarted
 
     def _on_target(self, msg: m.Target) -> None:
         with self._cond:
@@ -310,6 +334,9 @@ class ZenohReachEnv(gym.Env):
             time.sleep(0.5)
         state = reply.state
         with self._cond:
+            if state.instance != self._instance:
+                self._new_robot_io(state.instance)
+            self._restarted = False  # this reset took the robot-io that answered it over
             self._taken_over_by = ""  # the reset made this session the one the arm obeys
             self._obeyed_since_tick = state.tick
             if state.tick >= (self._state.tick if self._state is not None else -1):
@@ -349,9 +376,13 @@ class ZenohReachEnv(gym.Env):
         # here, counted in ``refused``. Unsigned, a forged chunk can take our next number: resend at once.
         signed = self.bus.signing_key is not None
         refused_in_a_row = 0
+        restarted = False
         while True:
             if self.stop.is_set():
                 raise EnvStopped("stopped while waiting for the robot")
+            if self._consume_restart():
+                restarted = True  # the chunk went to a process that is gone: the episode ends here
+                break
             self._check_taken_over()
             if refused_in_a_row > (MAX_SIGNED_REFUSED if signed else MAX_REFUSED_IN_A_ROW):
                 raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {self.refused}")
@@ -398,7 +429,7 @@ class ZenohReachEnv(gym.Env):
         self._steps += 1
         self.global_step += 1
         obs, distance, info = self._observe()
-        truncated = self._steps >= self.settings.max_episode_steps
+        truncated = self._steps >= self.settings.max_episode_steps or restarted
         return obs, reach_reward(distance), False, truncated, info
 
     def _check_taken_over(self) -> None:
@@ -486,6 +517,7 @@ class ZenohReachEnv(gym.Env):
         if not self._wait(self._target_fresh, 0.0):
             self._hold_for_target()
         state, target = self._next_tick()
+        restarted = self._consume_restart()  # this tick is the new robot-io's: the episode ends with it
         with self._cond:
             self._last_state = state
         plan_id, index, action = played(state, self.book, self.session.id)
@@ -493,5 +525,5 @@ class ZenohReachEnv(gym.Env):
         self.global_step += 1
         obs, distance, info = self._observe(state, target)
         info.update(tick=state.tick, played_chunk=state.played_chunk, mode=m.label(state, "mode"))
-        truncated = self._steps >= self.settings.max_episode_steps
+        truncated = self._steps >= self.settings.max_episode_steps or restarted
         return Executed(plan_id, index, action, obs, reach_reward(distance), False, truncated, info)

@@ -4,7 +4,9 @@ One MCAP channel per key expression (``adaptiveh/<robot>/<topic>``), message enc
 one schema per message type: its full name (``adaptiveh.RobotState``) and the ``FileDescriptorSet`` of
 ``adaptiveh.proto``, so any MCAP reader decodes the file with the schema alone (Foxglove does).
 Bytes that do not decode as their key's type are kept too, wrapped in an ``adaptiveh.Rejected`` on the
-channel ``_rejected/<key>``: nothing seen on the bus is lost. Given a ``Deriver``, the recorder also
+channel ``_rejected/<key>``: nothing seen on the bus is lost. Given the stack's signing key, so are
+messages of a signed type that are not the stack's (unsigned, forged, or a copy of one already recorded):
+a typed channel holds only what the stack said, once. Given a ``Deriver``, the recorder also
 writes Foxglove's well-known channels derived from the messages (``adaptiveh/<robot>/foxglove/...``:
 image, transforms, 3D scene, log; ``monitor.foxglove.derive``), each with its own schema, so the file
 opens in Foxglove's 3D, image and plot panels. ``adaptiveh replay`` republishes the robot's own
@@ -33,12 +35,19 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from bus import messages as m
+from bus.signing import Verifier, signed
 from bus.transport import undeclare_quietly
 from monitor.foxglove.derive import Derived, Deriver, is_derived
 
 log = logging.getLogger(__name__)
 NAMESPACE = m.NAMESPACE
 REJECTED = "_rejected/"
+# MCAP packs times as uint64 ns, sequences as uint32 and channel ids as uint16; a value out of range fails
+# half-way through a record and corrupts its chunk (issue #31), so every value written is kept in range.
+MAX_STAMP_S = 2.0**32  # a stamp below this is < 4.3e18 ns, inside uint64 (and Foxglove's uint32 seconds)
+U32 = 2**32
+MAX_OTHER_KEYS = 256  # keys outside the schema with their own channel; a stranger's further ones share one
+OTHER_KEYS = "_other_keys"
 
 
 class RecordingError(ValueError):
@@ -71,7 +80,9 @@ class Recorder:
     loss) leaves a file that ``read`` opens with everything up to its last flush. ``split_s``: a file is
     finished and the next part (``<stem>.part2.mcap``, …; ``parts``) begun after this long, because an
     MCAP writer keeps one chunk index per flush in memory until the file ends (the soak's supervisor
-    grew ~4 MB an hour with 1 s flushes); ``read`` of the first part reads them all.
+    grew ~4 MB an hour with 1 s flushes); ``read`` of the first part reads them all. ``key``: the stack's
+    signing key (``bus.signing.mac_key``); with it, a message of a signed type goes to its typed channel
+    only if it is authentic and new (one ``Verifier`` per key), else to ``_rejected/<key>`` with the reason.
     """
 
     def __init__(
@@ -83,6 +94,7 @@ class Recorder:
         deriver: Deriver | None = None,
         flush_s: float = 1.0,
         split_s: float = 900.0,
+        key: bytes | None = None,
     ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -92,6 +104,10 @@ class Recorder:
         self._deriver = deriver
         self._begin(self.path)
         self._seq: dict[str, int] = {}  # per key, across parts
+        self.robot = robot
+        self._key = key
+        self._verifiers: dict[str, Verifier] = {}  # per typed key, across parts
+        self._other_keys: set[str] = set()  # keys outside the schema that have their own rejected channel
         self.derived = 0
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
         self.count = 0
@@ -163,32 +179,50 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            key, data, msg = self._checked(key, data)
-            channel = self._channel(key, m.Rejected if msg is None else type(msg))
-            # publish time: the sender's stamp (a message got back late keeps when it was sent)
-            stamp = getattr(msg, "stamp", 0.0) if msg is not None else 0.0
-            sent = int(stamp * 1e9) if stamp > 0 else now
-            self._write(key, channel, data, now, sent)
+            msg, error = self._checked(key, data)
+            if msg is None:
+                rejected = m.Rejected(key=key, error=error, data=data).SerializeToString()
+                self._write(self._rejected_topic(key), m.Rejected, rejected, now, now)
+            else:
+                self._write(key, type(msg), data, now, publish_time(msg, now))
             self.count += 1
             if self._deriver is not None and msg is not None:
                 for derived in self._deriver.feed(m.topic_of_key(key), msg):
-                    self._write(derived.topic, self._derived_channel(derived), derived.data, now)
+                    self._write_derived(derived, now)
                     self.derived += 1
 
-    def _write(self, key: str, channel: int, data: bytes, now: int, sent: int | None = None) -> None:
-        self._seq[key] = self._seq.get(key, 0) + 1
-        self._writer.add_message(channel, now, data, now if sent is None else sent, self._seq[key])
+    def _write(self, key: str, msg_type: type[m.Message], data: bytes, now: int, sent: int) -> None:
+        self._add(key, self._channel(key, msg_type), data, now, sent)
 
-    @staticmethod
-    def _checked(key: str, data: bytes) -> tuple[str, bytes, m.Message | None]:
-        """(key, data, message) for a valid message; (``_rejected/<key>``, a Rejected wrapping it, None)."""
+    def _write_derived(self, d: Derived, now: int) -> None:
+        self._add(d.topic, self._derived_channel(d), d.data, now, now)
+
+    def _add(self, key: str, channel: int, data: bytes, now: int, sent: int) -> None:
+        """One record; its sequence wraps within uint32 (MCAP's), per key."""
+        self._seq[key] = (self._seq.get(key, 0) + 1) % U32
+        self._writer.add_message(channel, now, data, sent, self._seq[key])
+
+    def _checked(self, key: str, data: bytes) -> tuple[m.Message | None, str]:
+        """(the message, "") when ``data`` belongs on ``key``'s typed channel; (None, why) when not."""
         topic = m.topic_of_key(key)
+        if topic is None:
+            return None, f"{key}: not a topic of the schema"
         try:
-            if topic is None:
-                raise m.MessageError(f"{key}: not a topic of the schema")
-            return key, data, topic.decode(data)
+            msg = topic.decode(data)
+            if self._key is not None and signed(topic.type):
+                self._verifiers.setdefault(key, Verifier(self._key)).check(key, msg)
         except m.MessageError as exc:
-            return REJECTED + key, m.Rejected(key=key, error=str(exc), data=data).SerializeToString(), None
+            return None, str(exc)
+        return msg, ""
+
+    def _rejected_topic(self, key: str) -> str:
+        """``_rejected/<key>``; past MAX_OTHER_KEYS keys outside the schema, one shared channel (the
+        Rejected keeps the key), so a stranger's new keys cannot run MCAP out of channel ids."""
+        if m.topic_of_key(key) is None and key not in self._other_keys:
+            if len(self._other_keys) >= MAX_OTHER_KEYS:
+                return REJECTED + m.key(self.robot, OTHER_KEYS)
+            self._other_keys.add(key)
+        return REJECTED + key
 
     def _channel(self, key: str, msg_type: type[m.Message]) -> int:
         channel = self._channels.get(key)
@@ -221,6 +255,16 @@ class Recorder:
                 self._closed = True
                 self._writer.finish()
                 self._fh.close()
+
+
+def publish_time(msg: m.Message, now: int) -> int:
+    """When ``msg`` was sent, in ns: its stamp when that is a time MCAP holds, else ``now`` (arrival).
+
+    A message got back late keeps when it was sent. A stamp of 1e12 s (a stranger's bit flip) decoded
+    fine but made the writer fail half-way through the record (issue #31): never passed to it.
+    """
+    stamp = getattr(msg, "stamp", 0.0)
+    return int(stamp * 1e9) if 0.0 < stamp < MAX_STAMP_S else now
 
 
 def part_path(first: Path, n: int) -> Path:

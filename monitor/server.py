@@ -33,6 +33,7 @@ from bus.learner_session import REFUSALS
 from bus.node import Node
 from bus.transport import Bus
 from common.config import Section
+from monitor.view_limits import ViewLimits
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
@@ -59,9 +60,13 @@ class MonitorConfig(Section):
 
 
 class MonitorState:
-    """Everything the page shows, updated from Zenoh callbacks, read under one lock."""
+    """Everything the page shows, updated from Zenoh callbacks, read under one lock. With the stack's key
+    on ``bus`` only signed, new messages arrive here; ``limits`` keeps out-of-range ones off the plots.
+    Both kinds of refusal land in one counter (``counts["rejected"]``), never in the page's numbers."""
 
-    def __init__(self, bus: Bus, history: int = 600) -> None:
+    def __init__(self, bus: Bus, history: int = 600, limits: ViewLimits | None = None) -> None:
+        self.bus = bus
+        self.limits = limits or ViewLimits()
         self.lock = threading.Lock()
         self._json_lock = threading.Lock()
         self._json, self._json_at = b"", -float("inf")
@@ -130,6 +135,10 @@ class MonitorState:
                 self.target.append([round(x, 4) for x in t.position])
 
     def _retreat(self, e: m.RetreatEvent) -> None:
+        problem = self.limits.problem(e)
+        if problem is not None:
+            self.bus.report_bad(m.EVENTS_RETREAT.name, m.MessageError(problem, "out_of_range"))
+            return
         reason = m.label(e, "reason")
         with self.lock:
             self.counts["segments"] += 1
@@ -246,7 +255,7 @@ class MonitorState:
                 "target": list(self.target),
                 "returns": list(self.returns),
                 "safety": list(self.safety)[-20:],
-                "counts": dict(self.counts),
+                "counts": dict(self.counts) | {"rejected": sum(self.bus.bad_messages.values())},
                 "plans": [
                     {k: v for k, v in p.items() if k != "last_tick"}
                     | {"queued": max(0, p["n"] - p["executed"] - p["dropped"])}

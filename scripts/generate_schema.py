@@ -13,7 +13,7 @@ from pathlib import Path
 
 from grpc_tools import protoc
 
-HERE = Path(__file__).resolve().parent.parent / "deploy" / "schema"
+HERE = Path(__file__).resolve().parent.parent / "bus" / "schema"
 
 
 def main() -> int:

@@ -13,7 +13,7 @@ LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
 length_multiple: _descriptor.FieldDescriptor
 
 class RobotState(_message.Message):
-    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index", "session", "chunk_stamp", "played_stamp", "mac")
+    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index", "session", "chunk_stamp", "played_stamp", "mac", "instance")
     class Mode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         MODE_UNSPECIFIED: _ClassVar[RobotState.Mode]
@@ -44,6 +44,7 @@ class RobotState(_message.Message):
     CHUNK_STAMP_FIELD_NUMBER: _ClassVar[int]
     PLAYED_STAMP_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    INSTANCE_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     q: _containers.RepeatedScalarFieldContainer[float]
@@ -60,7 +61,8 @@ class RobotState(_message.Message):
     chunk_stamp: float
     played_stamp: float
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    instance: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ..., instance: _Optional[str] = ...) -> None: ...
 
 class Target(_message.Message):
     __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status", "mac")
@@ -193,7 +195,7 @@ class ChunkStatus(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ..., session: _Optional[str] = ..., verdict: _Optional[_Union[ChunkStatus.Verdict, str]] = ..., chunk_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class RetreatEvent(_message.Message):
-    __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step")
+    __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step", "mac")
     class Reason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         REASON_UNSPECIFIED: _ClassVar[RetreatEvent.Reason]
@@ -212,6 +214,7 @@ class RetreatEvent(_message.Message):
     STATISTIC_FIELD_NUMBER: _ClassVar[int]
     THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     segment: int
@@ -220,10 +223,11 @@ class RetreatEvent(_message.Message):
     statistic: _containers.RepeatedScalarFieldContainer[float]
     threshold: float
     global_step: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ...) -> None: ...
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class SafetyEvent(_message.Message):
-    __slots__ = ("seq", "stamp", "kind", "detail", "held")
+    __slots__ = ("seq", "stamp", "kind", "detail", "held", "mac")
     class Kind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         KIND_UNSPECIFIED: _ClassVar[SafetyEvent.Kind]
@@ -265,12 +269,14 @@ class SafetyEvent(_message.Message):
     KIND_FIELD_NUMBER: _ClassVar[int]
     DETAIL_FIELD_NUMBER: _ClassVar[int]
     HELD_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     kind: SafetyEvent.Kind
     detail: str
     held: bool
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., kind: _Optional[_Union[SafetyEvent.Kind, str]] = ..., detail: _Optional[str] = ..., held: _Optional[bool] = ...) -> None: ...
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., kind: _Optional[_Union[SafetyEvent.Kind, str]] = ..., detail: _Optional[str] = ..., held: _Optional[bool] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class LearnerTelemetry(_message.Message):
     __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo", "mac")

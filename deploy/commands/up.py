@@ -28,6 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bus.node import on_stop_signal
+    from deploy.run_report import summary_table
     from deploy.stack import Stack, check
 
     setup_logging(args.log_level)
@@ -45,7 +46,10 @@ def run(args: argparse.Namespace) -> int:
         logging.error("%s", exc)
         return 2
     text = json.dumps(summary, indent=1)
-    print("summary:\n" + text)
+    print("summary:\n" + summary_table(summary))
+    print(f"summary file: {summary['summary_file']}")
+    if summary["learning_curve"]:
+        print(f"learning curve: {summary['learning_curve']}")
     if args.summary:
         with open(args.summary, "w") as fh:
             fh.write(text)

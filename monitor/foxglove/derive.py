@@ -33,6 +33,7 @@ import numpy as np
 from foxglove import messages as fm
 
 from bus import messages as m
+from monitor.view_limits import ViewLimits
 
 if TYPE_CHECKING:
     from monitor.foxglove.robot_model import ArmPoser
@@ -287,7 +288,8 @@ class Deriver:
     4 gives 5 Hz, enough for a path and ~4x cheaper on disk than every tick. ``links_every``: the arm's
     link and the camera transforms every this many states (the ee's at every state): they are most of
     the transform bytes (~1.4 kB a set). ``path_len``: executed end-effector points kept, one every
-    other state (100 = 10 s at 20 Hz). Not thread-safe: callers serialize ``feed``.
+    other state (100 = 10 s at 20 Hz). ``limits``: a message out of the views' range derives nothing.
+    Not thread-safe: callers serialize ``feed``.
     """
 
     PLANS_KEPT = 4
@@ -296,12 +298,14 @@ class Deriver:
         self,
         robot: str,
         setup: SceneSetup | None = None,
+        limits: ViewLimits | None = None,
         scene_every: int = 4,
         links_every: int = 2,
         path_len: int = 100,
     ):
         self.robot = robot
         self.setup = setup or SceneSetup()
+        self.limits = limits or ViewLimits()
         self.scene_every, self.links_every = scene_every, links_every
         self.executed: deque[list[float]] = deque(maxlen=path_len)
         self.target: m.Target | None = None
@@ -323,6 +327,8 @@ class Deriver:
         By topic, not by type: the sim's ground-truth target is a ``Target`` too, and is not the target
         the robot chases (it would double the transforms for nothing the operator acts on).
         """
+        if self.limits.problem(msg) is not None:
+            return []
         if topic == m.STATE:
             return self._state(msg)
         if topic == m.TARGET:

@@ -7,7 +7,9 @@ without re-encoding), and the channels ``monitor.foxglove.derive`` computes from
 protocol has no authentication, and our web page stays the place for control (e-stop, jog).
 
 The server runs on its own ``foxglove.Context``, so two servers (a test's, a replay's) never share
-channels. Bytes that do not decode are not forwarded (the recording keeps them, under ``_rejected/``).
+channels. Bytes that do not decode are not forwarded (the recording keeps them, under ``_rejected/``);
+with the stack's signing key, neither are messages of a signed type that are not the stack's (unsigned,
+forged, or a replayed copy): a viewer, and the deriver's paths and plans, see only what the stack said.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import foxglove
 import zenoh
 
 from bus import messages as m
+from bus.signing import Verifier, signed
 from monitor.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
 from monitor.recording import file_descriptor_set
 
@@ -40,7 +43,11 @@ class _Listener(foxglove.websocket.ServerListener):
 
 
 class FoxgloveLive:
-    """A Foxglove WebSocket server on ``host:port`` (0: any free port) showing ``robot``'s traffic."""
+    """A Foxglove WebSocket server on ``host:port`` (0: any free port) showing ``robot``'s traffic.
+
+    ``key``: the stack's signing key (``bus.signing.mac_key``); with it, a message of a signed type is
+    shown only if it is authentic and new (one ``Verifier`` per key). Without one, everything that decodes.
+    """
 
     def __init__(
         self,
@@ -50,8 +57,11 @@ class FoxgloveLive:
         host: str = "127.0.0.1",
         port: int = 8766,
         exclude: tuple[str, ...] = (),
+        key: bytes | None = None,
     ) -> None:
         self.robot, self.host = robot, host
+        self._key = key
+        self._verifiers: dict[str, Verifier] = {}
         self.context = foxglove.Context()
         self.deriver = Deriver(robot, setup)
         self.robot_wanted = threading.Event()
@@ -113,6 +123,8 @@ class FoxgloveLive:
             return
         now = time.time_ns()
         with self._lock:  # the deriver keeps paths and plans: one message at a time, in arrival order
+            if not self._believed(key, topic, msg):
+                return
             self._raw_channel(key, topic.type).log(data, log_time=now)
             derived = self.deriver.feed(topic, msg)
             if isinstance(msg, m.RobotState) and self.robot_wanted.is_set():
@@ -122,6 +134,18 @@ class FoxgloveLive:
             for d in derived:
                 self._derived_channel(d).log(d.data, log_time=now)
             self.count += 1
+
+    def _believed(self, key: str, topic: m.Topic, msg: m.Message) -> bool:
+        """Without a key, or for an unsigned type: yes. Else whether ``msg`` is authentic and new (under
+        the lock: a replay guard sees each message once, in order)."""
+        if self._key is None or not signed(topic.type):
+            return True
+        try:
+            self._verifiers.setdefault(key, Verifier(self._key)).check(key, msg)
+        except m.MessageError as exc:
+            log.debug("not forwarded: %s", exc)
+            return False
+        return True
 
     def close(self) -> None:
         try:
@@ -142,12 +166,14 @@ def start_live(
     host: str,
     port: int | None,
     exclude: tuple[str, ...] = (),
+    key: bytes | None = None,
 ) -> FoxgloveLive | None:
-    """The live server, or None when it is off (``port`` None) or cannot bind: the monitor runs without it."""
+    """The live server, or None when it is off (``port`` None) or cannot bind: the monitor runs without it.
+    ``key``: the stack's signing key; with it only the stack's own signed messages are shown."""
     if port is None:
         return None
     try:
-        return FoxgloveLive(session, robot, setup, host, port, exclude)
+        return FoxgloveLive(session, robot, setup, host, port, exclude, key)
     except Exception as exc:  # foxglove-sdk raises its own error types on a port in use
         log.warning("Foxglove live view not started on %s:%s: %s", host, port, exc)
         return None

@@ -93,6 +93,9 @@ def _breaks_a_rule(msg: m.Message) -> bool:
         values = list(getattr(msg, fd.name)) if fd.is_repeated else [getattr(msg, fd.name)]
         if fd.type == FieldDescriptor.TYPE_DOUBLE and not all(math.isfinite(v) for v in values):
             return True
+        is_stamp = fd.name == "stamp" or fd.name.endswith("_stamp")
+        if is_stamp and fd.type == FieldDescriptor.TYPE_DOUBLE and not 0 <= values[0] < 2**32:
+            return True  # a time Foxglove cannot show (its seconds are a uint32)
         known = fd.enum_type.values_by_number if fd.enum_type else {}
         if fd.type == FieldDescriptor.TYPE_ENUM and any(v not in known or v == 0 for v in values):
             return True

@@ -33,7 +33,7 @@ def _wait(pred, timeout=5.0):
 def test_publisher_stamps_and_subscriber_decodes(buses):
     a, b = buses
     got, bad = [], []
-    b.subscribe(m.CHUNK_STATUS, got.append, on_bad=lambda topic, exc: bad.append((topic, str(exc))))
+    b.subscribe(m.CHUNK_STATUS, got.append, on_bad=lambda topic, exc, data: bad.append((topic, str(exc))))
     pub = a.publisher(m.CHUNK_STATUS, first_seq=41)
     time.sleep(0.3)  # let the subscription reach the publisher's session
     before = time.time()
@@ -216,3 +216,36 @@ def test_alive_now_on_a_closed_session_says_so(endpoint):
     bus.close()
     with pytest.raises(ConnectionError, match="liveliness query .*alive/learner/a"):
         bus.alive_now("learner/a", timeout=0.5)
+
+
+def test_with_the_stacks_key_only_signed_new_events_arrive_and_floods_log_a_line_per_reason(endpoint, caplog):
+    """Unsigned, foreign-signed and replayed retreat events are dropped and counted; a flood of them logs
+    one line per kind, not one per message."""
+    from bus.signing import mac_key, sign
+
+    name, key = unique_name("sg"), mac_key("tok")
+    part = Bus(open_session(ZenohConfig(listen=(endpoint,))), name, key)
+    reader = Bus(open_session(ZenohConfig(connect=(endpoint,))), name, key)
+    try:
+        got = []
+        reader.subscribe(m.EVENTS_RETREAT, got.append)
+        pub = part.publisher(m.EVENTS_RETREAT)
+        time.sleep(0.3)
+        genuine = m.RetreatEvent(segment=1, H=4, reason=m.RetreatEvent.RETREAT)
+        pub.put(genuine)
+        assert _wait(lambda: len(got) == 1)
+        wire = reader.key(m.EVENTS_RETREAT)
+        with caplog.at_level("WARNING", logger="bus.transport"):
+            for i in range(300):
+                forged = m.RetreatEvent(segment=i, H=85, reason=m.RetreatEvent.RETREAT, stamp=time.time())
+                part.session.put(wire, forged.SerializeToString())  # unsigned
+                sign(forged, mac_key("another stack"))
+                part.session.put(wire, forged.SerializeToString())  # foreign
+                part.session.put(wire, genuine.SerializeToString())  # an exact copy of a genuine one
+            assert _wait(lambda: reader.bad_messages.get("events/retreat", 0) == 900)
+        assert [e.segment for e in got] == [1]
+        lines = [r for r in caplog.records if "events/retreat" in r.getMessage()]
+        assert 2 <= len(lines) <= 3, [r.getMessage() for r in lines]  # forged, replayed: first in full
+    finally:
+        reader.close()
+        part.close()

@@ -1,6 +1,7 @@
 """Foxglove's view: a plan's predicted path and the rest a newer plan cut off reach the recorded 3D scene
 (read back with mcap and protobuf alone), and ``adaptiveh monitor`` serves the robot's state over
-Foxglove's WebSocket protocol to a plain client that decodes it with the advertised schema."""
+Foxglove's WebSocket protocol to a plain client that decodes it with the advertised schema; with the stack's
+key, the live view shows none of a stranger's messages."""
 
 from __future__ import annotations
 
@@ -17,13 +18,16 @@ import time
 from pathlib import Path
 
 import websockets
+from loopback import unique_name
 from mcap.reader import make_reader
 from stack_helpers import write_stack_config
-from test_recording import schema_decoder
+from test_recording import KEY, STRANGER, schema_decoder
 
 from bus import messages as m
+from bus.signing import sign
 from bus.transport import ZenohConfig, open_session
 from monitor.foxglove.derive import Deriver, SceneSetup
+from monitor.foxglove.live import FoxgloveLive
 from monitor.foxglove.robot_model import obj_to_stl
 from monitor.recording import Recorder
 
@@ -189,3 +193,44 @@ def test_layout_file_is_current_and_names_our_channels() -> None:
         for c in ("camera", "tf", "scene", "robot", "log", "distance", "retreat")
     }
     assert named and named <= derived | {t.key("panda") for t in m.TOPICS.values()}, named
+
+
+def _target(seq: int, key: bytes | None) -> m.Target:
+    """A tracked target, signed with ``key`` (None: unsigned)."""
+    t = m.Target(
+        seq=seq,
+        stamp=time.time(),
+        position=[0.5, 0.01 * seq, 0.3],
+        velocity=[0.0] * 3,
+        covariance=[0.0] * 9,
+        valid=True,
+        status=m.Target.TRACKING,
+    )
+    if key is not None:
+        sign(t, key)
+    return t
+
+
+def test_live_view_with_the_key_shows_only_the_stack_s_messages(endpoint: str) -> None:
+    """With the stack's key, an unsigned, a stranger-signed, an altered and a replayed Target are neither
+    forwarded to a viewer nor fed to the deriver (the scene's target); the stack's own ones are. Without a
+    key (the default), everything that decodes is shown, as before."""
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    robot = unique_name("fk")
+    strict, lenient = (FoxgloveLive(session, robot, port=0, key=k) for k in (KEY, None))
+    first, last = _target(1, KEY), _target(6, KEY)
+    altered = m.Target.FromString(first.SerializeToString())
+    altered.position[1] = 9.0
+    sent = [_target(2, None), _target(3, STRANGER), first, altered, first, last]
+    try:
+        for msg in sent:  # one key, one session: they arrive in this order
+            session.put(m.TARGET.key(robot), msg.SerializeToString())
+        deadline = time.monotonic() + 5
+        while (strict.deriver.target, lenient.deriver.target) != (last, last) and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        strict.close()
+        lenient.close()
+        session.close()
+    assert strict.deriver.target == last and lenient.deriver.target == last
+    assert (strict.count, lenient.count) == (2, len(sent))  # first and last; everything

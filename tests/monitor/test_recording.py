@@ -1,26 +1,38 @@
 """A short ``adaptiveh up`` run records every part's traffic to MCAP; the file decodes with the mcap
 reader and the protobuf schema stored in it alone (no project code), Foxglove's well-known channels
 included; ``adaptiveh replay`` puts the robot's own channels back on Zenoh, where a subscriber and the
-monitor's JSON endpoint receive them."""
+monitor's JSON endpoint receive them. A recorder fed a stranger's fuzz writes only records a reader
+decodes with their channel's schema, and, given the stack's key, typed channels of the stack's own signed
+messages alone (issue #31)."""
 
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 import threading
 import time
 import urllib.request
-from collections import Counter
+from collections import Counter, defaultdict, deque
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
+import numpy as np
 import pytest
+import zenoh
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from google.protobuf.descriptor import FieldDescriptor
+from loopback import unique_name
 from mcap.reader import make_reader
 from stack_helpers import write_stack_config
 
 from bus import messages as m
+from bus.signing import authentic, mac_key, sign, signed
 from bus.transport import ZenohConfig, open_session
+from monitor.foxglove.derive import Deriver, is_derived
 
 TYPES = {
     "adaptiveh.RobotState",
@@ -307,3 +319,231 @@ def test_a_long_recording_is_split_and_reads_back_whole(tmp_path: Path, endpoint
         per_part.append(len(msgs))
         assert all(schema.name == "adaptiveh.ChunkStatus" for schema, _, _ in msgs)
     assert sum(per_part) == 60 and min(per_part[:-1]) > 0
+
+
+# -- a stranger's fuzz (issue #31) ---------------------------------------------------------------------
+KEY = mac_key("the operator's token")
+STRANGER = mac_key("a stranger's guess")
+ME = "0a1b2c3d4e5f6071"
+FUZZED = 10_000
+BAD_STAMPS = (-1.0, -1e-9, -1e300, 2.0**32, 1e12, 1e300)  # 1e12 s = 1e21 ns: past MCAP's uint64
+
+
+def sample(key: str, data: bytes) -> SimpleNamespace:
+    """What the recorder and the live view read of a ``zenoh.Sample``: its key and its payload."""
+    return SimpleNamespace(key_expr=key, payload=zenoh.ZBytes(data))
+
+
+def _v(rng: np.random.Generator, n: int) -> list[float]:
+    return rng.uniform(-1.0, 1.0, n).tolist()
+
+
+def _target(r: np.random.Generator, valid: bool, status: int) -> m.Target:
+    return m.Target(position=_v(r, 3), velocity=_v(r, 3), covariance=_v(r, 9), valid=valid, status=status)
+
+
+GENUINE: dict[m.Topic[Any], Callable[[np.random.Generator], m.Message]] = {
+    m.STATE: lambda r: m.RobotState(
+        q=_v(r, 7), dq=_v(r, 7), ee_pos=_v(r, 3), ee_vel=_v(r, 3), mode=1, session=ME, chunk_seq=-1
+    ),
+    m.TARGET: lambda r: _target(r, valid=True, status=m.Target.TRACKING),
+    m.TARGET_TRUTH: lambda r: _target(r, valid=False, status=m.Target.NONE),
+    m.CMD_CHUNK: lambda r: m.ActionChunk(actions=_v(r, 6), predicted_ee=_v(r, 6), session=ME),
+    m.CHUNK_STATUS: lambda r: m.ChunkStatus(chunk_seq=3, executed=2, preempted_by=-1, session=ME, verdict=1),
+    m.EVENTS_RETREAT: lambda r: m.RetreatEvent(segment=4, H=9, reason=1, statistic=_v(r, 9), threshold=0.3),
+    m.EVENTS_SAFETY: lambda r: m.SafetyEvent(kind=1, detail="workspace", held=True),
+    m.TELEMETRY_LEARNER: lambda r: m.LearnerTelemetry(global_step=12, episode=1, algo="adaptiveh"),
+    m.CONTROL: lambda r: m.Control(command=m.Control.PAUSE, jog=[0.0] * 3),
+    m.CAMERA_ANNOTATED: lambda r: m.AnnotatedImage(jpeg=r.bytes(int(r.integers(10, 2000))), detected=True),
+}
+
+
+def _genuine(topic: m.Topic[Any], n: int, rng: np.random.Generator) -> bytes:
+    """The stack's ``n``-th message: its own seq and a newer stamp, signed with the stack's key."""
+    msg = GENUINE[topic](rng)
+    msg.seq, msg.stamp = n, 1.7e9 + n * 1e-3
+    if signed(type(msg)):
+        sign(msg, KEY)
+    return msg.SerializeToString()
+
+
+def _refield(topic: m.Topic[Any], data: bytes, rng: np.random.Generator, change: str) -> bytes:
+    """A genuine message changed through protobuf: a bad stamp or a NaN (then signed with the stack's key
+    or a stranger's), no mac, a stranger's mac, or a seq altered under the genuine mac."""
+    msg = topic.type.FromString(data)
+    if change == "stamp":
+        msg.stamp = float(rng.choice(BAD_STAMPS))
+    elif change == "nan":
+        floats = [f for f in msg.DESCRIPTOR.fields if f.type == FieldDescriptor.TYPE_DOUBLE]
+        fd = floats[int(rng.integers(len(floats)))]
+        if fd.is_repeated and len(getattr(msg, fd.name)):
+            getattr(msg, fd.name)[0] = math.nan
+        else:
+            setattr(msg, fd.name, [math.nan] if fd.is_repeated else math.nan)
+    elif change == "seq":
+        msg.seq += 1  # the old mac kept: an altered copy
+    if change in ("unsigned", "foreign") and isinstance(msg, m.Control):
+        msg.command = m.Control.ESTOP  # robot-io obeys it; the recording keeps it apart all the same
+    if signed(topic.type) and change != "seq":
+        msg.mac = b""
+        if change != "unsigned":
+            sign(msg, STRANGER if change == "foreign" or rng.random() < 0.5 else KEY)
+    return msg.SerializeToString()
+
+
+def _mutated(topic: m.Topic[Any], data: bytes, rng: np.random.Generator) -> bytes:
+    """One of a stranger's copies of ``data`` (a genuine payload already on the bus)."""
+    kind = int(rng.integers(10))
+    if kind == 0:
+        return rng.bytes(int(rng.integers(1, 400)))
+    if kind == 1:
+        return data[: int(rng.integers(len(data)))]
+    if kind == 2:
+        out = bytearray(data)
+        for _ in range(int(rng.integers(1, 5))):
+            out[int(rng.integers(len(out)))] ^= 1 << int(rng.integers(8))
+        return bytes(out)
+    if kind == 3:  # concatenated copies: protobuf parses them as one merged message
+        return data * int(rng.integers(2, max(3, 300_000 // len(data))))
+    if kind == 4:
+        return data  # an exact replay
+    return _refield(topic, data, rng, ("stamp", "nan", "unsigned", "foreign", "seq")[kind - 5])
+
+
+def _fuzz(robot: str, rng: np.random.Generator) -> Iterator[tuple[str, bytes, bool]]:
+    """``FUZZED`` (key, payload, genuine?): a quarter the stack's own messages, the rest a stranger's
+    mutations of recent genuine payloads, on their own key or (a tenth) on another typed key."""
+    topics = list(GENUINE)
+    recent: dict[m.Topic[Any], deque[bytes]] = defaultdict(lambda: deque(maxlen=8))
+    for n in range(1, FUZZED + 1):
+        topic = topics[int(rng.integers(len(topics)))]
+        if not recent[topic] or rng.random() < 0.25:
+            recent[topic].append(_genuine(topic, n, rng))
+            yield topic.key(robot), recent[topic][-1], True
+            continue
+        data = _mutated(topic, recent[topic][int(rng.integers(len(recent[topic])))], rng)
+        on = topics[int(rng.integers(len(topics)))] if rng.random() < 0.1 else topic
+        yield on.key(robot), data, False
+
+
+def _records(path: Path) -> Iterator[tuple[str, str, Any]]:
+    """(channel, schema name, message) of every record as written, decoded with the mcap reader and the
+    file's schemas alone (protobuf from the FileDescriptorSet, JSON for the derived plot values)."""
+    decoders: dict[int, Any] = {}
+    with open(path, "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            if schema.encoding == "jsonschema":
+                yield channel.topic, schema.name, json.loads(message.data)
+                continue
+            assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
+            if schema.id not in decoders:
+                decoders[schema.id] = schema_decoder(schema.name, schema.data)
+            yield channel.topic, schema.name, decoders[schema.id].FromString(message.data)
+
+
+def _assert_typed(topic: str, msg: Any, macs: set[tuple[str, bytes]]) -> None:
+    """A typed record: strictly valid, and for a signed type the stack's, once."""
+    m.validate(msg)
+    if signed(type(msg)):
+        assert authentic(msg, KEY), (topic, msg)
+        assert (topic, msg.mac) not in macs, f"{topic}: a replayed copy was recorded as the stack's"
+        macs.add((topic, msg.mac))
+
+
+@pytest.mark.parametrize("stamp_max_s", [m.STAMP_MAX_S, math.inf], ids=["decoder", "no-stamp-bound"])
+def test_a_stranger_fuzz_is_recorded_whole_and_every_record_decodes(
+    tmp_path: Path, endpoint: str, monkeypatch: pytest.MonkeyPatch, stamp_max_s: float
+) -> None:
+    """Issue #31: 10^4 of a stranger's random, truncated, bit-flipped, concatenated (merged, up to 300 kB),
+    restamped, NaN, unsigned, foreign-signed and replayed payloads among the stack's own, fed to a recorder
+    with the stack's key. Every record decodes with its channel's schema (mcap and protobuf alone); typed
+    channels hold only authentic messages, each once, every genuine one among them; and the file holds
+    as many raw records as were fed, the rest under ``_rejected/``. Also with the decoder's stamp bound
+    lifted (as when the issue was found): the recorder itself never hands MCAP a time it cannot pack."""
+    from monitor.recording import REJECTED, Recorder, read
+
+    monkeypatch.setattr(m, "STAMP_MAX_S", stamp_max_s)
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    robot, path = unique_name("fz"), tmp_path / "fuzz.mcap"
+    deriver = Deriver(robot) if math.isfinite(stamp_max_s) else None  # Foxglove's times need the bound
+    recorder = Recorder(session, robot, path, deriver=deriver, key=KEY)
+    fed: list[tuple[str, bytes, bool]] = []
+    try:
+        for key, data, genuine in _fuzz(robot, np.random.default_rng(31)):
+            fed.append((key, data, genuine))
+            recorder._on_sample(sample(key, data))
+    finally:
+        recorder.close()
+        session.close()
+    raw, macs = Counter(), set()
+    for topic, name, msg in _records(path):
+        if is_derived(topic):
+            continue
+        raw[topic.startswith(REJECTED)] += 1
+        if topic.startswith(REJECTED):
+            assert name == "adaptiveh.Rejected" and msg.key == topic[len(REJECTED) :] and msg.error
+        else:
+            assert m.topic_of_key(topic).type.DESCRIPTOR.full_name == name
+            _assert_typed(topic, msg, macs)
+    assert raw.total() == recorder.count == len(fed) == FUZZED  # nothing lost
+    records = read(path)  # the project's reader agrees
+    assert (recorder.derived > 0) == (deriver is not None) and len(records) == FUZZED + recorder.derived
+    typed = Counter((k, d) for k, _, _, d in records if m.topic_of_key(k) is not None)
+    genuine = [(k, d) for k, d, g in fed if g]
+    assert all(typed[kd] == 1 for kd in genuine if signed(m.topic_of_key(kd[0]).type))  # each once
+    assert all(typed[kd] >= 1 for kd in genuine)  # an image has no mac: its copies are recorded too
+    assert len(genuine) < raw[False] < len(fed) / 2, raw  # and image copies, Targets on both Target keys
+
+
+def test_a_stamp_mcap_cannot_hold_never_reaches_the_writer(
+    tmp_path: Path, endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue #31's cause: a decodable message stamped 1e12 s (1e21 ns, past MCAP's uint64) made the writer
+    fail half-way through a record, and a reader took the rest of the chunk as that message. With the
+    decoder's stamp bound lifted (as before it existed), such a message is recorded whole with its arrival
+    time, and everything after it reads back."""
+    from monitor.recording import Recorder
+
+    monkeypatch.setattr(m, "STAMP_MAX_S", math.inf)
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    robot, path = unique_name("st"), tmp_path / "stamps.mcap"
+    recorder = Recorder(session, robot, path)
+    stamps = [1.7e9, 1e12, 1e300, 1.7e9 + 1]
+    try:
+        for n, stamp in enumerate(stamps):
+            msg = m.LearnerTelemetry(seq=n, stamp=stamp, global_step=n)
+            recorder._on_sample(sample(m.TELEMETRY_LEARNER.key(robot), msg.SerializeToString()))
+    finally:
+        recorder.close()
+        session.close()
+    with open(path, "rb") as fh:
+        records = make_reader(fh).iter_messages(log_time_order=False)  # as written
+        got = [(msg.publish_time, msg.log_time, msg.data) for _, _, msg in records]
+    assert [m.LearnerTelemetry.FromString(d).seq for *_, d in got] == [0, 1, 2, 3]
+    assert [p == t for p, t, _ in got] == [False, True, True, False]  # a stamp MCAP cannot hold: arrival
+    assert got[3][0] == int((1.7e9 + 1) * 1e9)
+
+
+def test_a_stranger_s_many_keys_share_one_rejected_channel(
+    tmp_path: Path, endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """MCAP's channel ids are uint16: past ``MAX_OTHER_KEYS`` keys outside the schema, their bytes share
+    one ``_rejected`` channel (each Rejected keeps its key), so a stranger's new keys cannot exhaust them."""
+    import monitor.recording as rec
+
+    monkeypatch.setattr(rec, "MAX_OTHER_KEYS", 3)
+    session = open_session(ZenohConfig(listen=(endpoint,)))
+    robot, path = unique_name("mk"), tmp_path / "keys.mcap"
+    recorder = rec.Recorder(session, robot, path)
+    keys = [m.key(robot, f"k{i}") for i in range(6)] + [m.key(robot, "k0")]
+    try:
+        for key in keys:
+            recorder._on_sample(sample(key, b"x"))
+    finally:
+        recorder.close()
+        session.close()
+    got = [(topic, msg.key) for topic, _, msg in _records(path)]
+    other = rec.REJECTED + m.key(robot, rec.OTHER_KEYS)
+    assert got == [(rec.REJECTED + k, k) for k in keys[:3]] + [(other, k) for k in keys[3:6]] + [
+        (rec.REJECTED + keys[0], keys[0])
+    ]
