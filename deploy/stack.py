@@ -21,7 +21,7 @@ import threading
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import zenoh
@@ -60,6 +60,15 @@ def running_parts(config: str | Path) -> dict[str, int]:
             if command in commands:
                 found[command] = int(pid)
     return found
+
+
+def private_log(path: Path, append: bool) -> IO[str]:
+    """A part's log, readable by its owner only (0600): logs tell how the run went, which is the
+    operator's business."""
+    flags = os.O_WRONLY | os.O_CREAT | (os.O_APPEND if append else os.O_TRUNC)
+    fh = os.fdopen(os.open(path, flags, 0o600), "a" if append else "w")
+    os.fchmod(fh.fileno(), 0o600)  # one made before, with the default mode
+    return fh
 
 
 def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]:
@@ -167,16 +176,17 @@ class Stack:
         return env
 
     def _spawn(self, part: str) -> None:
+        """Start ``part`` with its output in ``<run>/logs/<part>.log``, 0600 in a 0700 folder when new."""
         logs = self.run_dir / "logs"
-        logs.mkdir(parents=True, exist_ok=True)
-        fh = open(logs / f"{part}.log", "a" if part in self.restarts else "w")
-        self.procs[part] = subprocess.Popen(
-            self.part_commands()[part],
-            stdout=fh,
-            stderr=subprocess.STDOUT,
-            env=self.part_environment(part),
-            start_new_session=True,
-        )
+        logs.mkdir(mode=0o700, parents=True, exist_ok=True)
+        with private_log(logs / f"{part}.log", append=part in self.restarts) as fh:  # the child has its copy
+            self.procs[part] = subprocess.Popen(
+                self.part_commands()[part],
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                env=self.part_environment(part),
+                start_new_session=True,
+            )
         nice = self.cfg.supervisor.nice.get(part, 0)
         if nice and hasattr(os, "setpriority"):
             os.setpriority(os.PRIO_PROCESS, self.procs[part].pid, nice)
@@ -207,6 +217,8 @@ class Stack:
         self._stop.set()
 
     def _wait_monitor_url(self, timeout: float = 30.0) -> None:
+        """The page's and Foxglove's URLs from monitor.log, any query dropped: the URL printed here gets
+        copied into bookmarks and notes, so it must never carry a token."""
         path = self.run_dir / "logs" / "monitor.log"
         deadline = time.monotonic() + timeout
         live = self.cfg.monitor is not None and self.cfg.monitor.foxglove_port is not None
@@ -215,7 +227,7 @@ class Stack:
                 return  # it died at start: the main loop restarts it or ends the run
             for line in path.read_text().splitlines() if path.exists() else []:
                 if line.startswith("monitor: ") and not self.monitor_url:
-                    self.monitor_url = line.split(" ", 1)[1]
+                    self.monitor_url = line.split(" ", 1)[1].split("?")[0]
                     deadline = min(deadline, time.monotonic() + 2.0)  # its Foxglove URL follows, if started
                 elif line.startswith("foxglove: "):
                     self.foxglove_url = line.split(" ", 1)[1]

@@ -7,9 +7,11 @@ queued counts, so the page can draw planned against executed and the abandoned r
 
 stdlib ``http.server`` on 127.0.0.1; the page polls ``/api/state`` (JSON) and ``/api/image.jpg``
 (the vision node's annotated JPEG) a few times a second. ``POST /api/control`` turns a button or a jog
-key into a ``Control`` message; it needs the token printed at start (``X-Token`` header or ``token``
-field). The message carries no token: the bus signs it with the token's key (``bus.signing``), and
-the robot and learner obey only a signed, fresh request (an e-stop from anyone).
+key into a ``Control`` message; it needs the operator token (``X-Token`` header or ``token`` field; the
+page asks for it once and keeps it out of the URL). An e-stop needs neither the token nor valid values,
+and a body without a readable command that mentions ``estop`` (not JSON, say) still stops the arm. The
+message carries no token: the bus signs it with the token's key (``bus.signing``), and the robot and
+learner obey only a signed, fresh request (an e-stop from anyone).
 """
 
 from __future__ import annotations
@@ -39,6 +41,19 @@ log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 PLANS_KEPT = 8  # the current plan and the recent ones the page draws
 SNAPSHOT_MAX_AGE_S = 0.1  # the page polls a few times a second; a snapshot this old is still current
+MAX_BODY = 64 * 1024  # a control request is a few dozen bytes
+
+
+def _length(header: str | None) -> int:
+    """The body's length to read: a garbled or huge Content-Length is read as at most MAX_BODY."""
+    try:
+        return max(0, min(int(header or 0), MAX_BODY))
+    except ValueError:
+        return 0
+
+
+def _error(exc: Exception) -> dict[str, Any]:
+    return {"ok": False, "error": str(exc)}
 
 
 class Server(ThreadingHTTPServer):
@@ -270,16 +285,20 @@ class MonitorState:
 class MonitorServer(Node):
     """HTTP server + Zenoh state on ``bus`` (closed with the server); ``token`` guards control requests."""
 
-    def __init__(self, bus: Bus, config: MonitorConfig, token: str | None = None) -> None:
+    def __init__(
+        self, bus: Bus, config: MonitorConfig, token: str | None = None, limits: ViewLimits | None = None
+    ) -> None:
         super().__init__(bus.robot, bus=bus)
         self.config = config
         self.token = token or secrets.token_urlsafe(12)
-        self.state = MonitorState(bus, config.history)
+        self.state = MonitorState(bus, config.history, limits)
         self._pub_control = bus.publisher(m.CONTROL)
         self.controls: list[str] = []
         server = self
 
         class Handler(BaseHTTPRequestHandler):
+            timeout = 5.0  # a request that never sends its promised body does not hold a thread for good
+
             def log_message(self, fmt: str, *args: Any) -> None:
                 log.debug(fmt, *args)
 
@@ -304,16 +323,23 @@ class MonitorServer(Node):
                 else:
                     self._send(404, b"not found", "text/plain")
 
+            def _body(self) -> bytes:
+                """The body, or what of it came before the time-out: one that lies about its length
+                may still ask for an e-stop."""
+                left, parts = _length(self.headers.get("Content-Length")), []
+                try:
+                    while left > 0 and (part := self.rfile.read1(left)):
+                        parts.append(part)
+                        left -= len(part)
+                except OSError:
+                    pass
+                return b"".join(parts)
+
             def do_POST(self) -> None:  # noqa: N802
-                if self.path != "/api/control":
+                if self.path.split("?")[0] != "/api/control":
                     self._send(404, b"not found", "text/plain")
                     return
-                try:
-                    body = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))) or b"{}")
-                    token = self.headers.get("X-Token") or body.get("token", "")
-                    code, reply = server.control(str(body.get("command", "")), body.get("jog"), token)
-                except (ValueError, TypeError) as exc:
-                    code, reply = 400, {"ok": False, "error": str(exc)}
+                code, reply = server.post_control(self._body(), self.headers.get("X-Token"))
                 self._send(code, json.dumps(reply).encode(), "application/json")
 
         self.httpd = Server((config.host, config.port), Handler)
@@ -323,9 +349,42 @@ class MonitorServer(Node):
         host, port = self.httpd.server_address[:2]
         return f"http://{host}:{port}/"
 
+    @staticmethod
+    def _json_object(raw: bytes) -> dict[str, Any] | None:
+        try:
+            body = json.loads(raw or b"{}")
+        except (ValueError, RecursionError):  # RecursionError: garbage nested a few thousand deep
+            return None
+        return body if isinstance(body, dict) else None
+
+    def post_control(self, raw: bytes, header_token: str | None) -> tuple[int, dict[str, Any]]:
+        """One ``POST /api/control`` body. A body without a readable command that mentions ``estop`` is
+        an e-stop (stopping by mistake is safe, ignoring a stop is not); the rest needs a JSON object."""
+        body = self._json_object(raw)
+        command = body.get("command") if body is not None else None
+        if not isinstance(command, str) and b"estop" in raw.lower():
+            return self.estop()
+        if body is None:
+            return 400, {"ok": False, "error": "the body must be a JSON object"}
+        try:
+            name = "" if command is None else str(command)
+            return self.control(name, body.get("jog"), header_token or body.get("token", ""))
+        except (ValueError, TypeError) as exc:
+            return 400, _error(exc)
+
+    def estop(self) -> tuple[int, dict[str, Any]]:
+        """Publish an e-stop: no token, nothing else asked (robot-io obeys one from anyone)."""
+        self._pub_control(m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
+        self.controls.append("estop")
+        log.warning("e-stop published at the page's request")
+        return 200, {"ok": True, "command": "estop", "at": time.time()}
+
     def control(self, command: str, jog: Any, token: str) -> tuple[int, dict[str, Any]]:
-        """Validate and publish one operator request; returns (HTTP code, reply)."""
-        if not secrets.compare_digest(str(token), self.token):
+        """Validate and publish one operator request; returns (HTTP code, reply). An e-stop needs
+        no token and ignores the rest of the request."""
+        if command.strip().lower() == "estop":
+            return self.estop()
+        if not secrets.compare_digest(str(token).encode(), self.token.encode()):  # str: ASCII only
             log.warning("control %r refused: wrong or missing token", command[:40])
             return 403, {"ok": False, "error": "wrong or missing token"}
         try:

@@ -1,15 +1,30 @@
-"""``adaptiveh monitor``: serve the operator's web page for one robot (prints the control token), and the
-Foxglove live view beside it (``monitor.foxglove_port``; prints its ``ws://`` URL)."""
+"""``adaptiveh monitor``: serve the operator's web page for one robot, and the Foxglove live view beside it
+(``monitor.foxglove_port``; prints its ``ws://`` URL).
+
+It prints the page's URL without the token: under ``adaptiveh up`` its output is monitor.log, and a log
+file must never hold the secret that moves the arm. How the operator learns the token: ``TOKEN_HELP``.
+"""
 
 from __future__ import annotations
 
 import argparse
 
-from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
+from deploy.commands import (
+    TOKEN_HELP,
+    add_part_arguments,
+    add_token_argument,
+    operator_token,
+    setup_logging,
+    show_token,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("monitor", help="serve the monitor web page (retreats, chunks, camera, e-stop)")
+    p = subparsers.add_parser(
+        "monitor",
+        help="serve the monitor web page (retreats, chunks, camera, e-stop)",
+        description=f"Serve the monitor web page for one robot. {TOKEN_HELP}",
+    )
     add_part_arguments(p, "name, zenoh, monitor")
     p.add_argument("--port", type=int, default=None, help="override monitor.port (0: any free port)")
     add_token_argument(p)
@@ -36,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     server = MonitorServer(bus, mcfg, token or None)  # else random: its controls are not the stack's
     setup = SceneSetup.from_vision(cfg.vision)
     live = start_live(bus.session, cfg.name, setup, mcfg.host, mcfg.foxglove_port, cfg.recording.exclude)
-    print(f"monitor: {server.url}?token={server.token}", flush=True)
-    print(f"monitor token: {server.token}", flush=True)
+    print(f"monitor: {server.url}", flush=True)  # the supervisor reads this line from monitor.log
+    token_file = None if token else show_token(server.token, cfg.name)
     if live is not None:
         print(f"foxglove: {live.url}", flush=True)
     try:
@@ -45,4 +60,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
+        if token_file is not None:
+            token_file.unlink(missing_ok=True)  # the token dies with this monitor
     return 0

@@ -2,6 +2,7 @@
 
 The replay publishes under ``adaptiveh/<as>/…`` (default ``<recorded robot>-replay``) so recorded
 chunks and controls never reach a live robot of the recorded name; the monitor here follows that name.
+Its page's token is made up here and never printed into a log (``TOKEN_HELP``).
 """
 
 from __future__ import annotations
@@ -11,11 +12,15 @@ import logging
 import signal
 import threading
 
-from deploy.commands import setup_logging
+from deploy.commands import TOKEN_HELP, setup_logging, show_token
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("replay", help="replay an MCAP recording into the monitor")
+    p = subparsers.add_parser(
+        "replay",
+        help="replay an MCAP recording into the monitor",
+        description=f"Replay an MCAP recording into a monitor started here. {TOKEN_HELP}",
+    )
     p.add_argument("file", help="a .mcap written by adaptiveh up")
     p.add_argument("--config", default="configs/sim.yaml", help="top-level YAML (zenoh, monitor)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed factor")
@@ -59,10 +64,11 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     on_stop_signal(stop.set, signal.SIGTERM, signal.SIGINT)
     session = open_session(zc)
-    server = live = None
+    server = live = token_file = None
     if not args.no_monitor:
         server = MonitorServer(Bus(session, robot), mcfg).start()
-        print(f"monitor: {server.url}?token={server.token}", flush=True)
+        print(f"monitor: {server.url}", flush=True)
+        token_file = show_token(server.token, robot)
         live = start_live(session, robot, SceneSetup.from_vision(stack.vision), mcfg.host, mcfg.foxglove_port)
         if live is not None:
             print(f"foxglove: {live.url}", flush=True)
@@ -87,4 +93,6 @@ def run(args: argparse.Namespace) -> int:
             server.stop()  # closes its bus, and with it the session
         else:
             session.close()
+        if token_file is not None:
+            token_file.unlink(missing_ok=True)  # the token dies with this monitor
     return 0

@@ -6,12 +6,24 @@ import argparse
 import json
 import logging
 import signal
+import sys
 
-from deploy.commands import add_token_argument, operator_token, setup_logging
+from deploy.commands import TOKEN_ENV, add_token_argument, operator_token, setup_logging
+
+TOKEN_NOTE = (
+    "A random operator token is printed on this terminal, and nowhere else: the parts' logs "
+    "(<run>/logs, mode 0600) and the monitor's URL never hold it; the page asks for it once. For runs "
+    f"whose output goes to a file (nohup, systemd) give your own with --token-file or ${TOKEN_ENV}: a "
+    "token given is never printed."
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("up", help="start the whole stack on this machine (Ctrl-C stops it cleanly)")
+    p = subparsers.add_parser(
+        "up",
+        help="start the whole stack on this machine (Ctrl-C stops it cleanly)",
+        description=f"Start the whole stack on this machine. {TOKEN_NOTE}",
+    )
     p.add_argument("config", nargs="?", default="configs/sim.yaml", help="top-level YAML")
     p.add_argument(
         "--check", action="store_true", help="validate the config and look for drivers; start nothing"
@@ -20,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--probe-arm", action="store_true", help="with --check: connect to the Franka and read its version"
     )
     p.add_argument("--steps", type=int, default=None, help="override learner.steps")
-    add_token_argument(p)  # default: a random token, printed
+    add_token_argument(p)  # default: a random token, printed (TOKEN_NOTE)
     p.add_argument("--summary", default="", help="also write the summary JSON here")
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=run)
@@ -37,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
         for line in lines:
             print(line)
         return 0 if ok else 1
-    stack = Stack(args.config, token=operator_token(args) or None, steps=args.steps)
-    print(f"operator token: {stack.token}", flush=True)
+    given = operator_token(args)
+    stack = Stack(args.config, token=given or None, steps=args.steps)
+    tell_token(stack.token, (args.token_file or f"${TOKEN_ENV}") if given else "")
     on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:
         summary = stack.run()
@@ -54,3 +67,17 @@ def run(args: argparse.Namespace) -> int:
         with open(args.summary, "w") as fh:
             fh.write(text)
     return 0 if summary["exit_codes"].get("learner") == 0 and not summary["gave_up"] else 1
+
+
+def tell_token(token: str, source: str) -> None:
+    """The operator's token on this terminal, the first line (scripts and tests read it there); one
+    the operator gave (``source``) is not repeated, to keep it out of output redirected to a file."""
+    if source:
+        print(f"using the operator token from {source} (not printed)", flush=True)
+        return
+    print(f"operator token: {token}", flush=True)
+    if not sys.stdout.isatty():
+        logging.warning(
+            "stdout is not a terminal, yet holds the operator token; for unattended runs "
+            "give one with --token-file (never printed)"
+        )

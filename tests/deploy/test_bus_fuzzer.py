@@ -1,23 +1,28 @@
-"""A black-box bus fuzzer against ``adaptiveh up`` (issue #13): for ``ADAPTIVEH_FUZZ_S`` seconds (12 in the
-default run) a stranger on the bus publishes mutated, truncated, replayed and oversized copies of the
-stack's own live traffic on every key it saw, and random bytes on ``control``.
+"""A black-box bus fuzzer against ``adaptiveh up`` (issues #13, #31): for ``ADAPTIVEH_FUZZ_S`` seconds (30
+in the default run) a stranger on the bus publishes mutated, truncated, replayed and oversized copies of
+the stack's own live traffic on every key it saw, random bytes on ``control``, and well-formed but unsigned
+progress, retreat and safety events that would rewrite the operator's view.
 
 Afterwards: every part is the same process as before (nothing crashed or was restarted), every periodic
 key flows, every chunk the arm played is one the learner signed, the learner took at most one step per
 control tick, and no state shows the arm outside its workspace box or joint limits or moving more than
-``robot.max_step_m`` in a tick. Genuine messages are told apart with the stack's key (the stranger has
-no token)."""
+``robot.max_step_m`` in a tick. The forged events change neither the supervisor's progress and summary
+nor what the monitor serves; each part logged fewer than 100 lines; no log file holds the token. Genuine
+messages are told apart with the stack's key (the stranger has no token)."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import threading
 import time
+import urllib.request
 from collections import defaultdict, deque
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,8 +34,46 @@ from bus.signing import authentic, mac_key
 from bus.transport import Bus, open_session
 from deploy.config import load_stack_config
 
-FUZZ_S = float(os.environ.get("ADAPTIVEH_FUZZ_S", "12"))
+FUZZ_S = float(os.environ.get("ADAPTIVEH_FUZZ_S", "30"))
+FORGED_STEP = 987_654_321  # a step count, H, statistic and safety kind no genuine message of this run has
+FORGED_H = 85
+FORGED_STATISTIC = 1e76
+FORGED_KIND = "driver_error"  # the PyBullet arm never reports one
 TOL_M = 0.01  # m: PyBullet tracking slack around the box and the step bound
+
+
+def forged_view(name: str, rng: np.random.Generator) -> dict[str, bytes]:
+    """Well-formed, unsigned messages a stranger would put to rewrite the operator's view."""
+    tel = m.LearnerTelemetry(global_step=FORGED_STEP, episode=14, episode_return=1e9, stamp=time.time())
+    retreat = m.RetreatEvent(
+        segment=int(rng.integers(10**6)),
+        H=FORGED_H,
+        reason=m.RetreatEvent.RETREAT,
+        statistic=[FORGED_STATISTIC],
+        stamp=time.time(),
+    )
+    safety = m.SafetyEvent(kind=m.SafetyEvent.DRIVER_ERROR, detail="forged", stamp=time.time())
+    return {
+        m.TELEMETRY_LEARNER.key(name): tel.SerializeToString(),
+        m.EVENTS_RETREAT.key(name): retreat.SerializeToString(),
+        m.EVENTS_SAFETY.key(name): safety.SerializeToString(),
+    }
+
+
+def monitor_view(logs: Path) -> dict:
+    """What the monitor serves now (its URL from its log: the token is never there)."""
+    url = re.search(r"^monitor: (http://\S+/)", (logs / "monitor.log").read_text(), re.M)
+    assert url, "the monitor printed no URL"
+    with urllib.request.urlopen(url.group(1) + "api/state", timeout=10) as reply:
+        return json.loads(reply.read())
+
+
+def assert_view_not_forged(view: dict, h_max: int) -> None:
+    assert view["learner"].get("step", 0) != FORGED_STEP
+    assert all(s["H"] <= h_max for s in view["segments"]), "a forged H reached the page"
+    assert all(abs(x) < FORGED_STATISTIC for _, x, _ in view["statistic"])
+    assert FORGED_KIND not in {e["kind"] for e in view["safety"]}
+    assert view["counts"]["rejected"] > 0
 
 
 def mutate(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
@@ -54,6 +97,7 @@ def mutate(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
 def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
     path, cfg = write_stack_config(tmp_path, "fz", steps=100000)
     stack = load_stack_config(path)
+    h_max = stack.learner.longest_segment
     up, token = start_up(path)
     key = mac_key(token)
     bus = Bus(open_session(stack.zenoh), stack.name)  # the stranger: no token
@@ -89,6 +133,9 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
                         kind, data = "random", rng.bytes(int(rng.integers(1, 60)))
                     bus.session.put(k, data)
                     sent[kind] += 1
+                for k, data in forged_view(stack.name, rng).items():
+                    bus.session.put(k, data)
+                    sent["forged view"] += 1
                 time.sleep(0.03)  # ~500 messages a second over the stack's ~15 keys
 
         thread = threading.Thread(target=fuzz, daemon=True)
@@ -117,6 +164,8 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
             mine = [s for s in states if authentic(s, key)]
             signed = {(c.session, c.seq, c.stamp) for c in chunks if authentic(c, key)}
         step1 = max(t.global_step for t in genuine())
+        assert_view_not_forged(monitor_view(tmp_path / "logs"), h_max)
+        log_lines = {p.stem: len(p.read_text().splitlines()) for p in (tmp_path / "logs").glob("*.log")}
     finally:
         sub.undeclare()
         bus.close()
@@ -127,6 +176,7 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
             up.kill()
         for pid in parts_of(path).values():
             os.kill(pid, signal.SIGKILL)
+    out = up.stdout.read()
     total = sum(sent.values())
     print(f"fuzzer: {total} messages on {len(seen)} keys in {t1 - t0:.1f} s: {dict(sent)}")
     assert total > 1000
@@ -141,3 +191,15 @@ def test_a_stranger_fuzzing_the_bus_neither_ends_nor_steers_the_run(tmp_path):
     assert_within_limits(mine, cfg["robot"], TOL_M)
     result = json.loads((tmp_path / "learner" / "result.json").read_text())
     assert result["global_step"] >= step1
+    # The supervisor believed none of the forged progress, retreats or safety events.
+    assert str(FORGED_STEP) not in out, "a forged step count reached the progress line"
+    summary_file = re.search(r"^summary file: (\S+)", out, re.M)
+    assert summary_file, out[-2000:]
+    summary = json.loads(Path(summary_file.group(1)).read_text())
+    assert summary["H"]["p90"] <= h_max and FORGED_KIND not in summary["safety_events"]
+    assert summary["rejected_messages"].get("events/retreat", 0) > 0
+    # Rate-limited reports: 30 s of fuzz on every key is a few lines per part, not one per message.
+    print(f"log lines per part after {FUZZ_S:.0f} s of fuzz: {log_lines}")
+    assert max(log_lines.values()) < 100, log_lines
+    for log_file in (tmp_path / "logs").glob("*"):
+        assert token not in log_file.read_text(errors="replace"), f"{log_file.name} holds the token"

@@ -1,6 +1,7 @@
 """The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run in
-plan execution: retreat events arrive, plans show planned against executed, E-STOP holds the arm,
-release lets learning resume. Saves a screenshot."""
+plan execution: retreat events arrive, plans show planned against executed, E-STOP holds the arm without
+a token, the token typed once survives a reload and never shows in the URL, release lets learning
+resume. Saves a screenshot."""
 
 import json
 import re
@@ -54,22 +55,25 @@ def test_monitor_in_chromium(tmp_path):
         [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
     )
     try:
-        url = None
+        url, token = None, None
         for line in up.stdout:
-            m = re.match(r"monitor: (http://\S+/)\?token=(\S+)", line)
+            token = token or line.strip().removeprefix("operator token: ")
+            assert "token=" not in line, f"a token in the monitor's URL: {line}"
+            m = re.match(r"monitor: (http://\S+/)$", line.strip())
             if m:
-                url, token = m.group(1), m.group(2)
+                url = m.group(1)
                 break
-        assert url, "the stack printed no monitor URL"
+        assert url and token, "the stack printed no monitor URL"
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             page = browser.new_page(viewport={"width": 1400, "height": 900})
-            page.goto(f"{url}?token={token}")
+            page.goto(url)
             _wait(lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page")
             _wait(lambda: "executed" in page.inner_text("#plans"), 30, "plans on the page")
             plans = _state(url)["plans"]
             assert plans and all(len(p["planned"]) == p["n"] + 1 for p in plans)  # the path travels along
-            page.click("#estop")
+            assert page.input_value("#token") == ""
+            page.click("#estop")  # no token typed yet: an e-stop needs none
             _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "the page showing estop")
             ee0 = _state(url)["robot"]["ee"]
             step0 = _state(url)["robot"]["chunk_seq"]
@@ -80,6 +84,9 @@ def test_monitor_in_chromium(tmp_path):
             assert s["robot"]["chunk_seq"] == step0  # no chunk accepted while e-stopped
             assert s["robot"]["joint_speed"] < 0.02, s["robot"]  # rad/s: the arm is still
             assert "rad/s" in page.inner_text("#jspeed")
+            page.fill("#token", token)  # once: the tab keeps it (sessionStorage), never the URL
+            page.reload()
+            assert page.input_value("#token") == token and token not in page.url
             page.click("#release")
             _wait(lambda: page.inner_text("#mode").lower() == "running", 10, "release")
             seg = int(page.inner_text("#segments"))

@@ -1,0 +1,319 @@
+"""Does the whole stack learn NS Reach when timing is unkind? (issue #32)
+
+Each run is the main job (``adaptiveh up`` on ``configs/sim.yaml``: robot-io, the sim camera and vision,
+the learner, the monitor, the recorder) for ``--steps`` steps (6000, the main job's budget) on one seed,
+in one condition:
+
+- ``quiet``: nothing else started by the bench;
+- ``loaded``: two CPU-bound processes at normal priority beside the stack (started and stopped here);
+- ``latency100`` / ``latency250`` / ``latency500``: ``learner.latency_ms`` (each plan published that late);
+- ``slow_camera``: the sim camera at ``SLOW_CAMERA_HZ``;
+- ``robot_io_restart``: quiet, robot-io SIGKILLed halfway; the row adds the seconds from the kill to the
+  first action the new robot-io played for the learner.
+
+Per run: success and final distance by quarter, mean H, retreats, safety events by kind (``workspace``
+clips among them), the target's age when it reached this process (p50/p99: capture -> arrival) and
+state -> chunk latency (a state's stamp to the next chunk's). The in-process learner (``NSReach-v0``) on
+the same seeds is the reference. Runs are kept one per file under ``results/stack_robustness/`` and a
+finished one is not run again (resumable); ``results/stack_robustness.json`` and ``.png`` summarise
+whatever has finished. One run at a time: they would load each other.
+
+    python bench/stack_robustness.py [--seeds 0 1 2] [--conditions quiet loaded ...] [--steps 6000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
+from loopback import free_endpoint, unique_name  # noqa: E402
+from stack_bench import curve, latency, quarters, run_in_process  # noqa: E402
+
+from bus import messages as m  # noqa: E402
+from bus.signing import mac_key  # noqa: E402
+from bus.transport import Bus, open_session  # noqa: E402
+from deploy.config import load_stack_config  # noqa: E402
+from deploy.stack import running_parts  # noqa: E402
+
+OUT = ROOT / "results" / "stack_robustness"
+SLOW_CAMERA_HZ = 5.0
+CONDITIONS: dict[str, dict[str, Any]] = {
+    "quiet": {},
+    "loaded": {"load": 2},
+    "latency100": {"latency_ms": 100.0},
+    "latency250": {"latency_ms": 250.0},
+    "latency500": {"latency_ms": 500.0},
+    "slow_camera": {"camera_hz": SLOW_CAMERA_HZ},
+    "robot_io_restart": {"kill_robot_io": True},
+}
+
+
+class Watcher:
+    """The bench's own peer on the run's bus (with the stack's key: genuine messages only)."""
+
+    def __init__(self, config: Path, token: str) -> None:
+        cfg = load_stack_config(config)
+        self.bus = Bus(open_session(cfg.zenoh), cfg.name, mac_key(token))
+        self.lock = threading.Lock()
+        self.states: list[tuple[float, int, str]] = []
+        self.chunks: list[tuple[float, int]] = []
+        self.target_age: list[float] = []
+        self.played: list[tuple[float, str]] = []  # (arrival, robot-io instance) of ticks that played ours
+        self.bus.subscribe(m.STATE, self._state)
+        self.bus.subscribe(m.CMD_CHUNK, lambda c: self._add(self.chunks, (c.stamp, c.seq)))
+        self.bus.subscribe(m.TARGET, self._target)
+
+    def _add(self, where: list, item: Any) -> None:
+        with self.lock:
+            where.append(item)
+
+    def _state(self, s: m.RobotState) -> None:
+        with self.lock:
+            self.states.append((s.stamp, s.chunk_seq, m.label(s, "mode")))
+            if s.session and s.played_chunk >= 0:
+                self.played.append((time.time(), s.instance))
+
+    def _target(self, t: m.Target) -> None:
+        if t.valid and t.frame_stamp > 0:
+            self._add(self.target_age, time.time() - t.frame_stamp)
+
+
+def _config(base: dict, tmp: Path, seed: int, steps: int, cond: dict[str, Any]) -> Path:
+    cfg = json.loads(json.dumps(base))
+    cfg["name"] = unique_name("rob")
+    cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
+    cfg["robot"]["seed"] = seed
+    cfg["learner"].update(
+        steps=steps, seed=seed, checkpoint_dir=str(tmp / "learner"), latency_ms=cond.get("latency_ms", 0.0)
+    )
+    if "camera_hz" in cond:
+        cfg["vision"]["rate_hz"] = cond["camera_hz"]
+    cfg["monitor"].update(port=0, foxglove_port=None)
+    cfg["recording"]["dir"] = str(tmp / "rec")
+    path = tmp / "stack.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def _burners(n: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def _kill_robot_io_halfway(path: Path, watcher: Watcher, steps: int, up: subprocess.Popen) -> dict[str, Any]:
+    """SIGKILL robot-io once the learner is halfway; seconds until the new one plays the learner's chunk."""
+    half = steps // 2
+    while up.poll() is None:
+        with watcher.lock:
+            n = len(watcher.played)
+        if n >= half:
+            break
+        time.sleep(0.5)
+    pid = running_parts(path).get("robot-io")
+    if pid is None:
+        return {"killed": False}
+    with watcher.lock:
+        old = {inst for _, inst in watcher.played[-20:]}
+    t_kill = time.time()
+    os.kill(pid, signal.SIGKILL)
+    while up.poll() is None and time.time() - t_kill < 120:
+        with watcher.lock:
+            new = [t for t, inst in watcher.played if t > t_kill and inst not in old]
+        if new:
+            return {"killed": True, "resumed_after_s": new[0] - t_kill}
+        time.sleep(0.1)
+    return {"killed": True, "resumed_after_s": None}
+
+
+def run_one(base: dict, condition: str, seed: int, steps: int) -> dict[str, Any]:
+    cond = CONDITIONS[condition]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        path = _config(base, tmp, seed, steps, cond)
+        burners = _burners(cond.get("load", 0))
+        summary_path = tmp / "summary.json"
+        t0 = time.time()
+        up = subprocess.Popen(
+            [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(summary_path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        try:
+            token = up.stdout.readline().strip().removeprefix("operator token: ")
+            watcher = Watcher(path, token)
+            restart = _kill_robot_io_halfway(path, watcher, steps, up) if cond.get("kill_robot_io") else None
+            progress = threading.Thread(target=_echo, args=(up, condition, seed), daemon=True)
+            progress.start()
+            up.wait(timeout=steps * 0.5 + 600)
+            progress.join(timeout=5)
+        finally:
+            for p in burners:
+                p.kill()
+            if up.poll() is None:
+                up.kill()
+        summary = json.loads(summary_path.read_text())
+        result = json.loads((tmp / "learner" / "result.json").read_text())
+        with watcher.lock:
+            states, chunks, ages = list(watcher.states), list(watcher.chunks), list(watcher.target_age)
+        watcher.bus.close()
+    c = curve(result["episodes"])
+    segments = result["segments"]
+    out = {
+        "condition": condition,
+        "seed": seed,
+        "steps": summary["global_step"],
+        "wall_clock_s": time.time() - t0,
+        "success_by_quarter": quarters([{**e, "success": float(bool(e["success"]))} for e in c], "success"),
+        "final_distance_by_quarter": quarters(c, "final_distance"),
+        "mean_H": float(np.mean([s["H"] for s in segments])) if segments else None,
+        "segments": len(segments),
+        "retreats": sum(s["reason"] == "retreat" for s in segments),
+        "safety_events": summary["safety_events"],
+        "workspace_clips": summary["safety_events"].get("workspace", 0),
+        "target_age_ms": _pcts(ages),
+        "state_to_chunk_ms": latency(states, chunks),
+        "restarts": summary["restarts"],
+        "load_during": os.getloadavg(),
+    }
+    if restart is not None:
+        out["robot_io_restart"] = restart
+    return out
+
+
+def _echo(up: subprocess.Popen, condition: str, seed: int) -> None:
+    for line in up.stdout:
+        if line.startswith("["):
+            print(f"  {condition} seed {seed}: {line.strip()}", flush=True)
+
+
+def _pcts(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    a = 1e3 * np.asarray(values)
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "n": len(a)}
+
+
+def reference(base: dict, seed: int, steps: int) -> dict[str, Any]:
+    cfg = json.loads(json.dumps(base))
+    cfg["learner"]["seed"] = seed
+    cfg["robot"]["seed"] = seed
+    with tempfile.TemporaryDirectory() as d:
+        res = run_in_process(cfg, steps, Path(d))
+    c = res["curve"]
+    return {
+        "condition": "in_process",
+        "seed": seed,
+        "success_by_quarter": quarters([{**e, "success": float(bool(e["success"]))} for e in c], "success"),
+        "final_distance_by_quarter": quarters(c, "final_distance"),
+        "retreats": res["retreats"],
+        "segments": res["segments"],
+        "wall_clock_s": res["wall_clock_s"],
+    }
+
+
+def table(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per condition: last-quarter success median and range over seeds, and the non-take-offs."""
+    out: dict[str, Any] = {}
+    for cond in [*CONDITIONS, "in_process"]:
+        rows = [r for r in runs if r["condition"] == cond]
+        if not rows:
+            continue
+        last = [r["success_by_quarter"][-1] for r in rows if r["success_by_quarter"][-1] is not None]
+        out[cond] = {
+            "seeds": sorted(r["seed"] for r in rows),
+            "last_quarter_success_median": float(np.median(last)) if last else None,
+            "last_quarter_success_range": [min(last), max(last)] if last else None,
+            "non_take_offs": sum(x == 0 for x in last),
+            "workspace_clips_median": float(np.median([r.get("workspace_clips", 0) for r in rows])),
+            "resumed_after_s": [
+                r["robot_io_restart"].get("resumed_after_s") for r in rows if "robot_io_restart" in r
+            ],
+        }
+    return out
+
+
+def plot(runs: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    conds = [c for c in [*CONDITIONS, "in_process"] if any(r["condition"] == c for r in runs)]
+    fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(conds)), 4))
+    for i, cond in enumerate(conds):
+        rows = [r for r in runs if r["condition"] == cond]
+        for r in rows:
+            q = [np.nan if x is None else 100 * x for x in r["success_by_quarter"]]
+            ax.plot(i + np.array([-0.3, -0.1, 0.1, 0.3]), q, "o-", ms=3, alpha=0.7)
+    ax.axhline(70, color="g", ls="--", lw=1, label="goal: last quarter >= 70 %")
+    ax.set_xticks(range(len(conds)), conds, rotation=20)
+    ax.set(
+        ylabel="success by quarter, % (one line per seed)", ylim=(-5, 105), title="NS Reach over the stack"
+    )
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS))
+    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--no-reference", action="store_true", help="skip the in-process runs")
+    args = ap.parse_args()
+    os.chdir(ROOT)
+    base = yaml.safe_load(open(ROOT / "configs/sim.yaml"))
+    OUT.mkdir(parents=True, exist_ok=True)
+    todo = [(c, s) for s in args.seeds for c in args.conditions]
+    if not args.no_reference:
+        todo += [("in_process", s) for s in args.seeds]
+    for i, (cond, seed) in enumerate(todo, 1):
+        file = OUT / f"{cond}_s{seed}_{args.steps}.json"
+        if file.exists():
+            print(f"[{i}/{len(todo)}] {cond} seed {seed}: done earlier ({file.name})")
+            continue
+        print(f"[{i}/{len(todo)}] {cond} seed {seed}: running", flush=True)
+        run = (
+            reference(base, seed, args.steps)
+            if cond == "in_process"
+            else run_one(base, cond, seed, args.steps)
+        )
+        run.update(commit=_commit(), machine={"cpus": os.cpu_count(), "python": platform.python_version()})
+        file.write_text(json.dumps(run, indent=1, default=float))
+        print(f"  success by quarter {run['success_by_quarter']}", flush=True)
+    runs = [json.loads(p.read_text()) for p in sorted(OUT.glob(f"*_{args.steps}.json"))]
+    summary = {"steps": args.steps, "table": table(runs), "runs": runs}
+    (ROOT / "results" / "stack_robustness.json").write_text(json.dumps(summary, indent=1, default=float))
+    plot(runs, ROOT / "results" / "stack_robustness.png")
+    for cond, row in summary["table"].items():
+        print(f"{cond:18s} {row}")
+    return 0
+
+
+def _commit() -> str:
+    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
+    dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT).stdout
+    return out.stdout.strip() + ("+dirty" if re.search(r"^ ?M ", dirty, re.M) else "")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
