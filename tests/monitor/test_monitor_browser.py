@@ -57,8 +57,10 @@ def test_monitor_in_chromium(tmp_path):
     try:
         url, token = None, None
         for line in up.stdout:
-            token = token or line.strip().removeprefix("operator token: ")
-            assert "token=" not in line, f"a token in the monitor's URL: {line}"
+            if line.startswith("operator token: "):
+                token = line.strip().removeprefix("operator token: ")
+                continue
+            assert "token" not in line and (token is None or token not in line), line  # only its own line
             m = re.match(r"monitor: (http://\S+/)$", line.strip())
             if m:
                 url = m.group(1)
@@ -85,8 +87,11 @@ def test_monitor_in_chromium(tmp_path):
             assert s["robot"]["joint_speed"] < 0.02, s["robot"]  # rad/s: the arm is still
             assert "rad/s" in page.inner_text("#jspeed")
             page.fill("#token", token)  # once: the tab keeps it (sessionStorage), never the URL
+            assert "token" not in page.url and token not in page.url
             page.reload()
             assert page.input_value("#token") == token and token not in page.url
+            assert page.evaluate("sessionStorage.getItem('adaptiveh-token')") == token
+            assert page.evaluate("JSON.stringify(localStorage)") == "{}"  # not kept beyond the tab
             page.click("#release")
             _wait(lambda: page.inner_text("#mode").lower() == "running", 10, "release")
             seg = int(page.inner_text("#segments"))
@@ -96,11 +101,21 @@ def test_monitor_in_chromium(tmp_path):
             shot.parent.mkdir(exist_ok=True)
             page.screenshot(path=str(shot), full_page=True)
             page.screenshot(path=str(tmp_path / "monitor.png"))
-            # A control without the token is refused.
+            # A control with a wrong token is refused; the E-STOP still stops.
             page.fill("#token", "wrong")
             page.click("#pause")
             _wait(lambda: "refused" in page.inner_text("#reply"), 5, "a refusal")
+            page.click("#estop")
+            _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "estop with a wrong token")
+            # An old bookmark's ?token= is moved into the tab's sessionStorage and off the address bar.
+            old = browser.new_page()
+            old.goto(f"{url}?token={token}&view=1")
+            _wait(lambda: "token" not in old.url, 5, "the token stripped from the URL")
+            assert old.url.endswith("?view=1") and old.input_value("#token") == token
+            assert old.evaluate("sessionStorage.getItem('adaptiveh-token')") == token
             browser.close()
     finally:
         up.terminate()
         up.wait(timeout=60)
+    for log in (tmp_path / "logs").iterdir():  # the page sent the token: no part wrote it down
+        assert log.stat().st_mode & 0o777 == 0o600 and token not in log.read_text(errors="replace"), log
