@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import socket
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Generic, Literal, TypeVar
@@ -232,6 +234,8 @@ class Bus:
         self._stall_s: float | None = None  # a stall this long renews the session (``open``); None: never
         self._looked = (time.monotonic(), time.process_time())  # check_stall's last look: clock and CPU
         self._stall_lock = threading.Lock()
+        self.continued = False  # set by the SIGCONT handler (``_watch_continue``): this process was stopped
+        self._gap_judged_busy = (-float("inf"), 0.0)  # (when, how long) a long gap was judged no stop
 
     @classmethod
     def open(cls, cfg: ZenohConfig, robot: str, key: bytes | None = None, identity: str | None = None) -> Bus:
@@ -250,6 +254,7 @@ class Bus:
         bus._reopen = again
         if again is not None:
             bus._stall_s = STALL_LEASES * cfg.lease_ms / 1000
+            _watch_continue(bus)
             threading.Thread(target=bus._guard, name="zenoh-stall-guard", daemon=True).start()
         return bus
 
@@ -275,6 +280,10 @@ class Bus:
         A look that comes ``stall_s`` late while the process used almost no CPU means it was stopped or
         starved (Zenoh's threads with it). A thread holding the GIL (a long pickle) delays the look too,
         but burns CPU, and Zenoh's own threads, outside the GIL, kept the links alive: no renewal then.
+        SIGCONT also says the process was stopped (``continued``): a thread that burned CPU holding the
+        GIL right after the stop (vision's renderer, 50-180 ms a frame) hid it from the CPU test, and
+        vision in the fault matrix never heard robot-io again. The handler runs in the main thread,
+        possibly after this look judged the gap: a late SIGCONT renews at the next look.
         Publishers look before each put (``Publisher.before_put``), so nothing leaves a stalled process
         on links its peers may have half-closed, even before the guard's thread runs again."""
         if self._stall_s is None:
@@ -283,6 +292,8 @@ class Bus:
         if now - self._looked[0] - GUARD_TICK_S <= self._stall_s:  # the common case: one clock read
             if now - self._looked[0] >= GUARD_TICK_S:
                 self._looked = (now, time.process_time())
+                if self.continued:
+                    return self._late_continue()
             return False
         with self._stall_lock:
             last, cpu = self._looked
@@ -290,16 +301,38 @@ class Bus:
             stalled = now - last - GUARD_TICK_S
             if stalled <= self._stall_s:  # another thread looked (or renewed) meanwhile
                 return False
+            continued, self.continued = self.continued, False
             renewed = False
-            if now_cpu - cpu < STALL_CPU_SHARE * (now - last):
-                log.warning(
-                    "this process was stalled %.2f s (Zenoh lease %.2f s): reopening its Zenoh session",
-                    stalled,
-                    self._stall_s / STALL_LEASES,
-                )
-                renewed = self.renew()
+            if continued or now_cpu - cpu < STALL_CPU_SHARE * (now - last):
+                renewed = self._renew_after(stalled)
+            else:
+                self._gap_judged_busy = (time.monotonic(), stalled)  # unless SIGCONT says otherwise soon
             self._looked = (time.monotonic(), time.process_time())  # the renewal itself is no stall
             return renewed
+
+    def _late_continue(self) -> bool:
+        """SIGCONT arrived after a look judged the gap busy: it was a stop after all (a SIGCONT with no
+        long gap before it was a stop too short to matter)."""
+        with self._stall_lock:
+            if not self.continued:
+                return False
+            self.continued = False
+            judged_at, stalled = self._gap_judged_busy
+            self._gap_judged_busy = (-float("inf"), 0.0)
+            if time.monotonic() - judged_at > LATE_CONTINUE_S:
+                return False
+            renewed = self._renew_after(stalled)
+            self._looked = (time.monotonic(), time.process_time())
+            return renewed
+
+    def _renew_after(self, stalled: float) -> bool:
+        assert self._stall_s is not None
+        log.warning(
+            "this process was stalled %.2f s (Zenoh lease %.2f s): reopening its Zenoh session",
+            stalled,
+            self._stall_s / STALL_LEASES,
+        )
+        return self.renew()
 
     def renew(self) -> bool:
         """Swap the session for a fresh one like it, remaking every declaration on it; False (the old
@@ -523,6 +556,26 @@ quarter lease, so the earliest of them expires a stopped process's link after 3/
 # links and memory for every peer; a starved process's links are Zenoh's to keep or remake.
 STALL_CPU_SHARE = 0.02
 GUARD_TICK_S = 0.1
+LATE_CONTINUE_S = 2.0  # a SIGCONT handled this long after a gap judged busy still counts as that gap's stop
+
+
+_CONTINUED: weakref.WeakSet[Bus] = weakref.WeakSet()  # buses told when this process is continued
+
+
+def _on_continue(signum: int, frame: object) -> None:
+    """SIGCONT: this process was stopped (SIGSTOP, Ctrl-Z, a debugger). Only sets flags: a handler
+    runs between two bytecodes of the main thread, which may hold a lock (``bus.node.on_stop_signal``)."""
+    for bus in list(_CONTINUED):
+        bus.continued = True
+
+
+def _watch_continue(bus: Bus) -> None:
+    """Tell ``bus`` when the process is continued; the handler is installed from the main thread only
+    (elsewhere Python refuses it, and the CPU test stands alone)."""
+    _CONTINUED.add(bus)
+    if threading.current_thread() is threading.main_thread() and hasattr(signal, "SIGCONT"):
+        if signal.getsignal(signal.SIGCONT) is not _on_continue:
+            signal.signal(signal.SIGCONT, _on_continue)
 
 
 @dataclass

@@ -35,6 +35,7 @@ from bus.learner_session import REFUSALS
 from bus.node import Node
 from bus.transport import Bus
 from common.config import Section
+from common.throttle import ReportThrottle
 from monitor.view_limits import ViewLimits
 
 log = logging.getLogger(__name__)
@@ -293,7 +294,8 @@ class MonitorServer(Node):
         self.token = token or secrets.token_urlsafe(12)
         self.state = MonitorState(bus, config.history, limits)
         self._pub_control = bus.publisher(m.CONTROL)
-        self.controls: list[str] = []
+        self.controls: deque[str] = deque(maxlen=256)  # the newest requests obeyed (a flood stays small)
+        self._reports, self._reports_lock = ReportThrottle(), threading.Lock()
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -372,11 +374,18 @@ class MonitorServer(Node):
         except (ValueError, TypeError) as exc:
             return 400, _error(exc)
 
+    def _report(self, reason: str, text: str) -> None:
+        """A log line per reason a minute at most: anyone who reaches the page can repeat a request."""
+        with self._reports_lock:
+            line = self._reports.report("api/control", reason, text)
+        if line is not None:
+            log.warning("%s", line)
+
     def estop(self) -> tuple[int, dict[str, Any]]:
         """Publish an e-stop: no token, nothing else asked (robot-io obeys one from anyone)."""
         self._pub_control(m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
         self.controls.append("estop")
-        log.warning("e-stop published at the page's request")
+        self._report("estop", "e-stop published at the page's request")
         return 200, {"ok": True, "command": "estop", "at": time.time()}
 
     def control(self, command: str, jog: Any, token: str) -> tuple[int, dict[str, Any]]:
@@ -385,7 +394,7 @@ class MonitorServer(Node):
         if command.strip().lower() == "estop":
             return self.estop()
         if not secrets.compare_digest(str(token).encode(), self.token.encode()):  # str: ASCII only
-            log.warning("control %r refused: wrong or missing token", command[:40])
+            self._report("token", f"control {command[:40]!r} refused: wrong or missing token")
             return 403, {"ok": False, "error": "wrong or missing token"}
         try:
             value = m.enum(m.Control, "command", command)

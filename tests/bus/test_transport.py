@@ -153,10 +153,12 @@ def test_a_bus_holding_the_hub_cannot_renew(endpoint):
         bus.close()
 
 
-def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
+def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint, burner):
     """A SIGSTOP near the 1 s lease expired the part's links on some peers only, and Zenoh remade none
     of them (the fault matrix lost robot-io's states for good once). The part renews its session when
-    its own clock says it was stopped, so every peer hears it again within a few seconds."""
+    it was stopped (SIGCONT tells it; its own clocks too), so every peer hears it again within a few
+    seconds. With a thread that holds the GIL for a C loop, the CPU it burned right after SIGCONT hid
+    the stop from the clocks (vision in the fault matrix then never heard robot-io again)."""
     import os
     import signal
     import subprocess
@@ -249,3 +251,28 @@ def test_with_the_stacks_key_only_signed_new_events_arrive_and_floods_log_a_line
     finally:
         reader.close()
         part.close()
+
+
+@pytest.mark.parametrize("sigcont", ["before the look", "after the look", "never"])
+def test_sigcont_says_a_busy_looking_gap_was_a_stop(endpoint, monkeypatch, sigcont):
+    """A thread that burned CPU holding the GIL right after SIGCONT (vision's renderer) made a stop look
+    like a busy process to the CPU test, and vision never heard robot-io again (fault matrix). SIGCONT
+    says it was a stop, whether its handler runs before the look that sees the gap or after it."""
+    hub = Bus(open_session(ZenohConfig(listen=(endpoint,))), unique_name("sc"))
+    bus = Bus.open(ZenohConfig(hub=endpoint), hub.robot)  # joins through the hub: it can renew
+    renewals = []
+    monkeypatch.setattr(bus, "renew", lambda: renewals.append(1) or True)
+    try:
+        with bus._stall_lock:  # the guard thread looks too: one gap, staged, under its lock
+            busy_gap = (time.monotonic() - 1.5, time.process_time() - 1.0)  # 1.0 s of CPU in 1.5 s
+            bus._looked = busy_gap
+            bus.continued = sigcont == "before the look"
+        bus.check_stall()
+        if sigcont == "after the look":
+            bus.continued = True
+            time.sleep(0.15)
+            bus.check_stall()
+        assert len(renewals) == (0 if sigcont == "never" else 1)
+    finally:
+        bus.close()
+        hub.close()
