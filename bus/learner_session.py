@@ -41,7 +41,7 @@ class LearnerSession:
 
     def reset(self, seed: int, timeout: float) -> m.ResetReply:
         """Ask robot-io for a new episode, taking the arm over if another session had it."""
-        request = m.ResetRequest(seed=seed, session=self.id)
+        request = m.ResetRequest(seed=seed, session=self.id, next_chunk=self._pub.next_seq)
         return self.bus.query(m.RESET, request, timeout=timeout)
 
     def mine(self, msg: m.RobotState | m.ChunkStatus) -> bool:

@@ -194,6 +194,11 @@ class Publisher(Generic[M]):
         self._before_put = before_put  # the bus's stall check (Bus.check_stall): may renew the session
         self._lock = threading.Lock()
 
+    @property
+    def next_seq(self) -> int:
+        """The number the next message put will get."""
+        return self._seq + 1
+
     def put(self, msg: M) -> int:
         if not isinstance(msg, self.topic.type):
             raise TypeError(f"{self.topic.name} carries {self.topic.type.__name__}, not {type(msg).__name__}")

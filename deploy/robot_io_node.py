@@ -282,7 +282,8 @@ class RobotIONode(Node):
         for request, done, box in resets:
             seed = request.seed if request.seed >= 0 else None  # -1: keep the target's motion
             try:
-                self.controller.take_over(request.session)  # a reset is how a learner session takes over
+                # A reset is how a learner session takes over, numbering on from its next chunk.
+                self.controller.take_over(request.session, request.next_chunk)
                 state = self.controller.reset(seed)
                 reply = m.ResetReply(ok=True, state=robot_state_message(state, self.instance, time.time()))
             except (TakeoverRefused, ArmHeld) as exc:  # a foreign session (a safety event), or held

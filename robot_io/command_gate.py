@@ -55,9 +55,9 @@ class CommandGate:
     def is_alive(self, session: str) -> bool:
         return session in self.live
 
-    def take_over(self, session: str) -> str | None:
-        """Obey ``session`` from now on, its numbering starting afresh; returns the session it replaced
-        ("" for none). Raises TakeoverRefused for a session that is not alive."""
+    def take_over(self, session: str, next_seq: int = 0) -> str | None:
+        """Obey ``session`` from now on, its numbering starting at ``next_seq`` (a learner's next chunk);
+        returns the session it replaced ("" for none). Raises TakeoverRefused for a session not alive."""
         if not session:
             raise TakeoverRefused("a reset must name its learner session (ResetRequest.session)")
         if session not in self.live:
@@ -67,7 +67,7 @@ class CommandGate:
             )
         previous = self.session
         if session != previous:
-            self.session, self.last_seq = session, -1
+            self.session, self.last_seq = session, max(next_seq, 0) - 1
         return previous
 
     def check(self, session: str, seq: int) -> Verdict | None:

@@ -175,12 +175,12 @@ class RobotController:
         self.learner_alive(session, True)
         self.take_over(session)
 
-    def take_over(self, session: str) -> None:
-        """Obey ``session`` from now on (its chunks numbered from 0); the rest of the previous session's
-        chunk is dropped. Raises ``TakeoverRefused`` for a session without a live token."""
+    def take_over(self, session: str, next_seq: int = 0) -> None:
+        """Obey ``session`` from now on (its chunks numbered from ``next_seq``); the rest of the previous
+        session's chunk is dropped. Raises ``TakeoverRefused`` for a session without a live token."""
         with self._lock:
             try:
-                previous = self.gate.take_over(session)
+                previous = self.gate.take_over(session, next_seq)
             except TakeoverRefused as exc:
                 self.safety.report("foreign_command", f"reset refused: {exc}")
                 raise

@@ -329,18 +329,20 @@ class Control(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class ResetRequest(_message.Message):
-    __slots__ = ("seq", "stamp", "seed", "session", "mac")
+    __slots__ = ("seq", "stamp", "seed", "session", "mac", "next_chunk")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     SEED_FIELD_NUMBER: _ClassVar[int]
     SESSION_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    NEXT_CHUNK_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     seed: int
     session: str
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., seed: _Optional[int] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    next_chunk: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., seed: _Optional[int] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ..., next_chunk: _Optional[int] = ...) -> None: ...
 
 class ResetReply(_message.Message):
     __slots__ = ("seq", "stamp", "ok", "detail", "state")

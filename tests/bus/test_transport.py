@@ -153,7 +153,7 @@ def test_a_bus_holding_the_hub_cannot_renew(endpoint):
         bus.close()
 
 
-def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint, burner):
+def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
     """A SIGSTOP near the 1 s lease expired the part's links on some peers only, and Zenoh remade none
     of them (the fault matrix lost robot-io's states for good once). The part renews its session when
     it was stopped (SIGCONT tells it; its own clocks too), so every peer hears it again within a few

@@ -127,3 +127,12 @@ def test_a_confirmation_from_the_network_admits_a_session_but_never_revives_a_go
         gate.take_over("late")
     gate.alive("late", True)  # the subscriber's own account still counts (a renewed session)
     assert gate.is_alive("late")
+
+
+def test_a_takeover_counts_from_the_learners_next_chunk():
+    """A learner that outlived its robot-io takes the new one over and goes on numbering where it was:
+    its next chunk is not a jump past max_seq_gap (it was: the restarted robot-io refused every chunk)."""
+    gate = CommandGate(max_seq_gap=32)
+    gate.alive("s", True)
+    gate.take_over("s", next_seq=39)
+    assert gate.check("s", 39) is None and gate.check("s", 38) == "stale"
