@@ -48,9 +48,21 @@ def run(args: argparse.Namespace) -> int:
     mcfg = cfg.monitor or MonitorConfig()
     token = operator_token(args)
     bus = Bus(open_session(cfg.zenoh), cfg.name, mac_key(token))  # signs controls with the stack's key
-    server = MonitorServer(bus, mcfg, token or None)  # else random: its controls are not the stack's
+    # With the stack's key the page and the live view believe only what the stack signed; the view
+    # limits keep out-of-range values off the plots.
+    limits = cfg.view_limits()
+    server = MonitorServer(bus, mcfg, token or None, limits)  # else random: its controls are not the stack's
     setup = SceneSetup.from_vision(cfg.vision)
-    live = start_live(bus.session, cfg.name, setup, mcfg.host, mcfg.foxglove_port, cfg.recording.exclude)
+    live = start_live(
+        bus.session,
+        cfg.name,
+        setup,
+        mcfg.host,
+        mcfg.foxglove_port,
+        cfg.recording.exclude,
+        bus.signing_key,
+        limits,
+    )
     print(f"monitor: {server.url}", flush=True)  # the supervisor reads this line from monitor.log
     token_file = None if token else show_token(server.token, cfg.name)
     if live is not None:

@@ -25,6 +25,7 @@ from bus import messages as m
 from bus.signing import Verifier, signed
 from monitor.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
 from monitor.recording import file_descriptor_set
+from monitor.view_limits import ViewLimits
 
 log = logging.getLogger(__name__)
 
@@ -58,12 +59,13 @@ class FoxgloveLive:
         port: int = 8766,
         exclude: tuple[str, ...] = (),
         key: bytes | None = None,
+        limits: ViewLimits | None = None,
     ) -> None:
         self.robot, self.host = robot, host
         self._key = key
         self._verifiers: dict[str, Verifier] = {}
         self.context = foxglove.Context()
-        self.deriver = Deriver(robot, setup)
+        self.deriver = Deriver(robot, setup, limits)
         self.robot_wanted = threading.Event()
         self.exclude = tuple(m.key(robot, t) for t in exclude)
         self.count = 0
@@ -167,13 +169,15 @@ def start_live(
     port: int | None,
     exclude: tuple[str, ...] = (),
     key: bytes | None = None,
+    limits: ViewLimits | None = None,
 ) -> FoxgloveLive | None:
     """The live server, or None when it is off (``port`` None) or cannot bind: the monitor runs without it.
-    ``key``: the stack's signing key; with it only the stack's own signed messages are shown."""
+    ``key``: the stack's signing key; with it only the stack's own signed messages are shown. ``limits``:
+    the derived plots leave out-of-range values out (``monitor.view_limits``)."""
     if port is None:
         return None
     try:
-        return FoxgloveLive(session, robot, setup, host, port, exclude, key)
+        return FoxgloveLive(session, robot, setup, host, port, exclude, key, limits)
     except Exception as exc:  # foxglove-sdk raises its own error types on a port in use
         log.warning("Foxglove live view not started on %s:%s: %s", host, port, exc)
         return None

@@ -241,3 +241,35 @@ def test_a_private_file_is_0600_from_the_start_and_replaces_what_was_there(tmp_p
     loose.symlink_to(elsewhere)  # a link planted at the path is replaced, never followed
     write_private(loose, "secret")
     assert not loose.is_symlink() and not elsewhere.exists()
+
+
+def test_the_monitor_command_gives_its_page_and_live_view_the_stacks_key_and_limits(tmp_path, monkeypatch):
+    """The page and the Foxglove live view of ``adaptiveh monitor`` believe only what the stack signed and
+    plot only in-range values (a rewrite of the command once dropped both for the live view)."""
+    import argparse
+
+    import monitor.foxglove.live as live
+    from bus.node import Node
+    from bus.signing import mac_key
+    from deploy.commands import monitor as command
+
+    path, _ = write_stack_config(tmp_path, "mk")
+    seen: dict[str, Any] = {}
+
+    def fake_live(session, robot, setup, host, port, exclude=(), key=None, limits=None):
+        seen.update(key=key, live_limits=limits)
+        return None
+
+    def stop_at_once(node: Node, duration: float = 0.0) -> None:
+        seen["page_limits"] = node.state.limits
+        node.stop()
+
+    monkeypatch.setattr(live, "start_live", fake_live)
+    monkeypatch.setattr("bus.node.run_until_stopped", stop_at_once)
+    monkeypatch.setenv(TOKEN_ENV, "operator")
+    args = argparse.Namespace(
+        config=str(path), port=0, foxglove_port=0, token_file="", log_level="WARNING", duration=0.0
+    )
+    assert command.run(args) == 0
+    assert seen["key"] == mac_key("operator")
+    assert seen["live_limits"].longest_segment == 50 and seen["page_limits"].longest_segment == 50
