@@ -112,3 +112,21 @@ class Verifier:
             raise ForgedMessage(f"{where}: not signed with the stack's key", msg)
         if not self._new(msg.mac, getattr(msg, "stamp", 0.0)):
             raise ForgedMessage(f"{where}: a copy of a message already seen (a replay)", msg, "replayed")
+
+
+class KeyedVerifiers:
+    """A ``Verifier`` per key expression, for a reader of every key (the recorder, the live view): with
+    no stack key, or for a type without a mac, everything passes."""
+
+    def __init__(self, key: bytes | None) -> None:
+        self.key = key
+        self._by_key: dict[str, Verifier] = {}
+
+    def check(self, where: str, msg: Message) -> None:
+        """Raise ForgedMessage unless ``msg`` (seen on ``where``) is the stack's and new, or has no mac."""
+        if self.key is None or not signed(type(msg)):
+            return
+        verifier = self._by_key.get(where)
+        if verifier is None:
+            verifier = self._by_key[where] = Verifier(self.key)
+        verifier.check(where, msg)

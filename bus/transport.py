@@ -450,9 +450,11 @@ class Bus:
         callback: Callable[[M], None],
         on_bad: Callable[[str, Exception, bytes], None] | None = None,
         verify: bool = True,
+        check: Callable[[M], str | None] | None = None,
     ) -> None:
         """Call ``callback`` with each decoded (and, with a key, authentic and new) message; bad bytes are
-        counted, logged (rate-limited) and reported to ``on_bad`` (topic, error, the bytes)."""
+        counted, logged (rate-limited) and reported to ``on_bad`` (topic, error, the bytes). ``check``:
+        the reader's own rule (e.g. a view's range), its complaint handled as a bad message's."""
         verifier = Verifier(self.signing_key) if verify and self.signing_key and signed(topic.type) else None
 
         def handler(sample: zenoh.Sample) -> None:
@@ -461,6 +463,9 @@ class Bus:
                 msg = topic.decode(data)
                 if verifier is not None:
                     verifier.check(topic.name, msg)
+                problem = check(msg) if check is not None else None
+                if problem is not None:
+                    raise MessageError(f"{topic.name}: {problem}", "out_of_range")
             except MessageError as exc:
                 self.report_bad(topic.name, exc)
                 if on_bad is not None:

@@ -263,7 +263,7 @@ class Stack:
                 split_s=self.recording.split_s,
                 key=bus.signing_key,
             )
-        bus.subscribe(m.EVENTS_RETREAT, self._on_segment)
+        bus.subscribe(m.EVENTS_RETREAT, self._on_segment, check=self.limits.problem)
         bus.subscribe(m.EVENTS_SAFETY, lambda e: self.safety_kinds.update([m.label(e, "kind")]))
         bus.subscribe(m.TELEMETRY_LEARNER, self._on_telemetry)
         t0 = time.monotonic()
@@ -309,10 +309,6 @@ class Stack:
         return summary
 
     def _on_segment(self, e: m.RetreatEvent) -> None:
-        problem = self.limits.problem(e)
-        if problem is not None:
-            self.bus.report_bad(m.EVENTS_RETREAT.name, m.MessageError(problem, "out_of_range"))
-            return
         self.segment_h.update([e.H])
         self.reasons.update([m.label(e, "reason")])
 

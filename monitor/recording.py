@@ -35,7 +35,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from bus import messages as m
-from bus.signing import Verifier, signed
+from bus.signing import KeyedVerifiers
 from bus.transport import undeclare_quietly
 from monitor.foxglove.derive import Derived, Deriver, is_derived
 
@@ -105,8 +105,7 @@ class Recorder:
         self._begin(self.path)
         self._seq: dict[str, int] = {}  # per key, across parts
         self.robot = robot
-        self._key = key
-        self._verifiers: dict[str, Verifier] = {}  # per typed key, across parts
+        self._verifiers = KeyedVerifiers(key)  # per typed key, across parts
         self._other_keys: set[str] = set()  # keys outside the schema that have their own rejected channel
         self.derived = 0
         self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
@@ -209,8 +208,7 @@ class Recorder:
             return None, f"{key}: not a topic of the schema"
         try:
             msg = topic.decode(data)
-            if self._key is not None and signed(topic.type):
-                self._verifiers.setdefault(key, Verifier(self._key)).check(key, msg)
+            self._verifiers.check(key, msg)
         except m.MessageError as exc:
             return None, str(exc)
         return msg, ""

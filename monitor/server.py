@@ -116,7 +116,7 @@ class MonitorState:
         self._retreat_segments: deque[int] = deque(maxlen=50)  # segments that ended in a retreat
         bus.subscribe(m.STATE, self._state)
         bus.subscribe(m.TARGET, self._target)
-        bus.subscribe(m.EVENTS_RETREAT, self._retreat)
+        bus.subscribe(m.EVENTS_RETREAT, self._retreat, check=self.limits.problem)
         bus.subscribe(m.CMD_CHUNK, self._chunk)
         bus.subscribe(m.CHUNK_STATUS, self._status)
         bus.subscribe(m.EVENTS_SAFETY, self._safety)
@@ -151,10 +151,6 @@ class MonitorState:
                 self.target.append([round(x, 4) for x in t.position])
 
     def _retreat(self, e: m.RetreatEvent) -> None:
-        problem = self.limits.problem(e)
-        if problem is not None:
-            self.bus.report_bad(m.EVENTS_RETREAT.name, m.MessageError(problem, "out_of_range"))
-            return
         reason = m.label(e, "reason")
         with self.lock:
             self.counts["segments"] += 1

@@ -22,7 +22,7 @@ import foxglove
 import zenoh
 
 from bus import messages as m
-from bus.signing import Verifier, signed
+from bus.signing import KeyedVerifiers
 from monitor.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
 from monitor.recording import file_descriptor_set
 from monitor.view_limits import ViewLimits
@@ -62,8 +62,7 @@ class FoxgloveLive:
         limits: ViewLimits | None = None,
     ) -> None:
         self.robot, self.host = robot, host
-        self._key = key
-        self._verifiers: dict[str, Verifier] = {}
+        self._verifiers = KeyedVerifiers(key)
         self.context = foxglove.Context()
         self.deriver = Deriver(robot, setup, limits)
         self.robot_wanted = threading.Event()
@@ -125,7 +124,7 @@ class FoxgloveLive:
             return
         now = time.time_ns()
         with self._lock:  # the deriver keeps paths and plans: one message at a time, in arrival order
-            if not self._believed(key, topic, msg):
+            if not self._believed(key, msg):
                 return
             self._raw_channel(key, topic.type).log(data, log_time=now)
             derived = self.deriver.feed(topic, msg)
@@ -137,13 +136,11 @@ class FoxgloveLive:
                 self._derived_channel(d).log(d.data, log_time=now)
             self.count += 1
 
-    def _believed(self, key: str, topic: m.Topic, msg: m.Message) -> bool:
-        """Without a key, or for an unsigned type: yes. Else whether ``msg`` is authentic and new (under
-        the lock: a replay guard sees each message once, in order)."""
-        if self._key is None or not signed(topic.type):
-            return True
+    def _believed(self, key: str, msg: m.Message) -> bool:
+        """Whether ``msg`` is the stack's and new (under the lock: a replay guard sees each message once,
+        in order); everything without a key."""
         try:
-            self._verifiers.setdefault(key, Verifier(self._key)).check(key, msg)
+            self._verifiers.check(key, msg)
         except m.MessageError as exc:
             log.debug("not forwarded: %s", exc)
             return False
