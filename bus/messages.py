@@ -33,12 +33,14 @@ from bus.schema.adaptiveh_pb2 import (
     ChunkStatus,
     Control,
     LearnerTelemetry,
+    PolicySnapshot,
     ResetReply,
     ResetRequest,
     RetreatEvent,
     RobotState,
     SafetyEvent,
     Target,
+    Transition,
 )
 
 Rejected = pb.Rejected  # recordings only: bytes that did not decode as their key's type
@@ -113,6 +115,10 @@ CONTROL = Topic("control", Control, urgent=True, never_drop=True, kept=KEPT)
 # Simulation only: the target's ground truth, for the sim camera, tests and benchmarks (the learner's
 # observation only when a test asks for it with ``learner.target_topic``).
 TARGET_TRUTH = Topic("sim/target_truth", Target, kept=KEPT)
+# The actor beside the arm and the learner anywhere (deploy.actor_node): the policy one way, every executed
+# tick the other. Snapshots are rare and must not be lost; the stream is kept so a stalled reader catches up.
+POLICY = Topic("policy/snapshot", PolicySnapshot, never_drop=True, kept=8)
+TRANSITIONS = Topic("stream/transition", Transition, kept=KEPT)
 RESET = Service("reset", ResetRequest, ResetReply)
 
 TOPICS: dict[str, Topic[Any]] = {t.name: t for t in list(globals().values()) if isinstance(t, Topic)}

@@ -36,6 +36,7 @@ COMMAND_IDENTITY: dict[str, Identity] = {
     "vision": "vision",
     "monitor": "monitor",
     "learn": "learner",
+    "act": "actor",
     "router": "router",
     "up": "supervisor",
 }
@@ -45,6 +46,7 @@ PART_IDENTITY: dict[str, Identity] = {
     "vision": "vision",
     "monitor": "monitor",
     "learner": "learner",
+    "actor": "actor",
 }
 
 # What each identity may send into the router, as keys below ``adaptiveh/<robot>/`` (any robot). The
@@ -52,9 +54,14 @@ PART_IDENTITY: dict[str, Identity] = {
 _ALIVE = m.LIVELINESS
 ROLES: dict[Identity, dict[str, tuple[str, ...]]] = {
     "learner": {
-        "put": ("cmd/**", m.EVENTS_RETREAT.name, m.TELEMETRY_LEARNER.name),
+        "put": ("cmd/**", m.EVENTS_RETREAT.name, m.TELEMETRY_LEARNER.name, m.POLICY.name),
         "query": (m.RESET.name,),
         "liveliness_token": (f"{_ALIVE}/learner/**",),
+    },
+    "actor": {  # beside the arm: commands it as a learner session does, streams what it played
+        "put": ("cmd/**", m.TRANSITIONS.name, m.EVENTS_SAFETY.name),
+        "query": (m.RESET.name,),
+        "liveliness_token": (f"{_ALIVE}/learner/**", f"{_ALIVE}/actor/**"),
     },
     "robot-io": {
         "put": (m.STATE.name, m.CHUNK_STATUS.name, m.EVENTS_SAFETY.name, "sim/**"),
@@ -72,7 +79,10 @@ ROLES: dict[Identity, dict[str, tuple[str, ...]]] = {
     },
 }
 #: Denials inside a role's own allowance (Zenoh: a matching deny beats any allow).
-DENIED: dict[Identity, dict[str, tuple[str, ...]]] = {"learner": {"put": (m.CHUNK_STATUS.name,)}}
+DENIED: dict[Identity, dict[str, tuple[str, ...]]] = {
+    "learner": {"put": (m.CHUNK_STATUS.name,)},
+    "actor": {"put": (m.CHUNK_STATUS.name,)},
+}
 _READ = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
 _ALL = (
     "put",

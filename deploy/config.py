@@ -27,6 +27,9 @@ from vision.config import VisionConfig
 __all__ = ["ConfigError", "LearnerConfig", "RecordingConfig", "StackConfig", "load_stack_config", "load_yaml"]
 
 
+ACTOR_ALGOS = ("adaptiveh", "rkhs")  # the RKHS learners: their policy travels as a snapshot
+
+
 class LearnerConfig(Section):
     """The ``learner:`` section: the learner process (``adaptiveh learn``)."""
 
@@ -58,9 +61,13 @@ class LearnerConfig(Section):
     # the robot plays while the learner learns from every executed tick (learner/plans.py,
     # deploy/zenoh_env.py); a retreat preempts the rest. closed_loop stays the default until plan mode
     # is measured to learn NS Reach at least as well through the stack (bench/stack_bench.py).
-    execution: Literal["closed_loop", "plan"] = "closed_loop"
-    # The learner's thinking time made real: each chunk is published this late (plan mode: the old plan
-    # keeps playing meanwhile; closed loop: the last chunk's tail does).
+    # actor: the plans are made and judged by an actor beside the arm (``adaptiveh act``,
+    # deploy/actor_node.py) from the newest policy snapshot this learner published; the learner learns
+    # from the actor's stream of executed ticks, wherever it runs (adaptiveh and rkhs only).
+    execution: Literal["closed_loop", "plan", "actor"] = "closed_loop"
+    # The learner's thinking time made real: each chunk (actor: each policy snapshot) is published this
+    # late (plan mode: the old plan keeps playing meanwhile; closed loop: the last chunk's tail does;
+    # actor: the actor keeps planning with the snapshot it has).
     latency_ms: float = Field(0.0, ge=0, le=10_000)
 
     @field_validator("agent")
@@ -83,6 +90,8 @@ class LearnerConfig(Section):
     def _plan_mode_supported(self) -> LearnerConfig:
         if self.execution == "plan" and "execution" not in AGENT_CONFIGS[self.algo].model_fields:
             raise ValueError(f"execution plan: algo {self.algo} has no plan mode")
+        if self.execution == "actor" and self.algo not in ACTOR_ALGOS:
+            raise ValueError(f"execution actor: algo {self.algo} has no actor; use one of {ACTOR_ALGOS}")
         return self
 
     @property
@@ -98,6 +107,8 @@ class LearnerConfig(Section):
         env, not the agent, delays the plan."""
         if self.execution == "closed_loop":
             return dict(self.agent)
+        if self.execution == "actor":  # the actor plans from the state it is in: no latency to plan over
+            return {**self.agent, "execution": "plan", "latency_steps": 0}
         steps = math.ceil(self.latency_ms / 1000.0 / period_s - 1e-9)
         return {**self.agent, "execution": "plan", "latency_steps": steps}
 

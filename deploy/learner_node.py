@@ -27,10 +27,12 @@ import numpy as np
 from bus import messages as m
 from bus.node import Node
 from bus.signing import ForgedMessage, Fresh, authentic
+from bus.transport import Bus
 from common.heap import release_free_heap
 from deploy.config import StackConfig
-from deploy.plan_channel import PlanDrop
-from deploy.zenoh_env import EnvSettings, EnvStopped, TakenOver, ZenohReachEnv
+from deploy.plan_channel import DelayedSender, PlanDrop
+from deploy.policy_wire import snapshot_message
+from deploy.zenoh_env import EnvSettings, EnvStopped, ReachSpec, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
@@ -56,8 +58,54 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
         target_timeout_s=lc.target_timeout_s,
-        execution=lc.execution,
+        execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
         latency_ms=lc.latency_ms,
+    )
+
+
+class TransitionFeed:
+    """The actor's executed ticks, in arrival order, for the learner's thread (bounded: a learner paused
+    for longer than ``keep`` ticks loses the oldest, counted in ``lost``)."""
+
+    def __init__(self, bus: Bus, keep: int = 20_000) -> None:
+        self._cond = threading.Condition()
+        self._items: deque[m.Transition] = deque()
+        self.keep = keep
+        self.lost = 0
+        self.received = 0
+        bus.subscribe(m.TRANSITIONS, self._on_transition)
+
+    def _on_transition(self, msg: m.Transition) -> None:
+        with self._cond:
+            self.received += 1
+            if len(self._items) >= self.keep:
+                self._items.popleft()
+                self.lost += 1
+            self._items.append(msg)
+            self._cond.notify()
+
+    def get(self, timeout: float) -> m.Transition | None:
+        with self._cond:
+            if not self._cond.wait_for(lambda: bool(self._items), timeout):
+                return None
+            return self._items.popleft()
+
+
+def learn_transition(agent: Agent, t: m.Transition) -> Any:
+    """Feed one of the actor's ticks to an RKHS agent (``AdaptiveH.learn_transition``)."""
+    info = {"success": t.success, "distance": t.distance, "target_age_s": t.target_age}
+    return agent.learn_transition(
+        np.asarray(t.obs, float),
+        np.asarray(t.raw_action, float),
+        t.reward,
+        np.asarray(t.next_obs, float),
+        t.terminated,
+        t.truncated,
+        info,
+        np.asarray(t.predicted, float) if len(t.predicted) else None,
+        m.label(t, "end"),
+        t.statistic if t.HasField("statistic") else None,
+        np.asarray(t.noise, float) if len(t.noise) else None,
     )
 
 
@@ -71,7 +119,12 @@ class LearnerNode(Node):
         self.cfg = settings.learner
         self._fresh_control = Fresh()
         super().__init__(settings.name, settings.zenoh, token=control_token)
-        self.env = ZenohReachEnv(self.bus, env_settings(settings))
+        self.stream = self.cfg.execution == "actor"  # learn from an actor's stream; never drive the robot
+        self.env = (
+            ReachSpec(env_settings(settings))
+            if self.stream
+            else ZenohReachEnv(self.bus, env_settings(settings))
+        )
         agent_cfg = self.cfg.agent_config(settings.robot.period)
         self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, agent_cfg)
         closed_loop = self.cfg.execution == "closed_loop"
@@ -95,8 +148,14 @@ class LearnerNode(Node):
         # The chunks that opened a segment after a retreat; the status naming one as preemptor comes within
         # a few chunks, so the newest few are enough (a set of every one grew for as long as the run).
         self._retreat_chunks: deque[int] = deque(maxlen=64)
-        self.env.on_status = self._on_status
-        self.env.on_plan_dropped = self._on_plan_dropped
+        if self.stream:
+            self.feed = TransitionFeed(self.bus)
+            self._pub_policy = self.bus.publisher(m.POLICY)
+            delay = self.cfg.latency_ms / 1000.0
+            self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
+        else:
+            self.env.on_status = self._on_status
+            self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
         self.declare_alive()
 
@@ -164,6 +223,8 @@ class LearnerNode(Node):
                     global_step=rec.global_step,
                 )
             )
+            if self.stream:
+                continue
             self.env.segment = rec.index + 1
             self.env.next_plan_reason = rec.reason  # plan mode: the next plan is this segment end's
             if rec.reason == "retreat" and self.cfg.execution == "closed_loop":
@@ -178,6 +239,27 @@ class LearnerNode(Node):
             self._telemetry()  # the operator sees the step count move between episodes
         if lg.global_step % self.cfg.checkpoint_every == 0:
             self.save()
+
+    def _learn_stream(self, progress: Any) -> None:
+        """Learn from the actor's ticks; at each segment's end checkpoint (so a killed learner loses at
+        most the segment it was in) and publish the new policy."""
+        while self.agent.log.global_step < self.cfg.steps and self._gate():
+            t = self.feed.get(timeout=0.25)
+            if t is None:
+                continue
+            if learn_transition(self.agent, t) is not None:
+                self.save()
+                self._publish_snapshot()
+            self._after_step()
+            if progress is not None:
+                progress(self)
+
+    def _publish_snapshot(self) -> None:
+        msg = snapshot_message(self.agent.snapshot())
+        if self._snapshot_sender is None:
+            self._pub_policy(msg)
+        else:
+            self._snapshot_sender.submit(msg)
 
     def _gate(self) -> bool:
         """Block while paused; False when stopping."""
@@ -196,7 +278,9 @@ class LearnerNode(Node):
         t0 = time.perf_counter()
         start = self.agent.log.global_step
         try:
-            if hasattr(self.agent, "step_env"):
+            if self.stream:
+                self._learn_stream(progress)
+            elif hasattr(self.agent, "step_env"):
                 while self.agent.log.global_step < self.cfg.steps and self._gate():
                     self.agent.step_env()
                     self._after_step()
@@ -231,20 +315,8 @@ class LearnerNode(Node):
             "steps_this_session": steps,
             "wall_clock_s": wall,
             "execution": self.cfg.execution,
-            "session": self.env.session.id,
-            "refused_chunks": dict(self.env.refused),
             "latency_ms": self.cfg.latency_ms,
-            "chunk_preemptions": self.env.preemptions,
-            "dropped_actions": self.env.dropped_total,
-            "target_waits": self.env.target_waits,
-            "outage_ticks": self.env.outage_ticks,
-            "dropped_planned": self.env.book.dropped_planned,
-            "dropped_planned_moving": self.env.book.dropped_moving,
-            "suspended_ticks": self.env.suspended_ticks,
-            "robot_restarts": self.env.robot_restarts,
-            "retreat_preemptions": self.retreat_preemptions,
-            "retreat_dropped": self.retreat_dropped,
-            "retreat_dropped_moving": self.retreat_dropped_moving,
+            **(self._stream_counts() if self.stream else self._robot_counts()),
             **full.to_dict(),
         }
         path = self.ckpt.parent / "result.json"
@@ -252,5 +324,28 @@ class LearnerNode(Node):
         path.write_text(json.dumps(out, indent=1, default=float))
         return out
 
+    def _robot_counts(self) -> dict[str, Any]:
+        env = self.env
+        return {
+            "session": env.session.id,
+            "refused_chunks": dict(env.refused),
+            "chunk_preemptions": env.preemptions,
+            "dropped_actions": env.dropped_total,
+            "target_waits": env.target_waits,
+            "outage_ticks": env.outage_ticks,
+            "dropped_planned": env.book.dropped_planned,
+            "dropped_planned_moving": env.book.dropped_moving,
+            "suspended_ticks": env.suspended_ticks,
+            "robot_restarts": env.robot_restarts,
+            "retreat_preemptions": self.retreat_preemptions,
+            "retreat_dropped": self.retreat_dropped,
+            "retreat_dropped_moving": self.retreat_dropped_moving,
+        }
+
+    def _stream_counts(self) -> dict[str, Any]:
+        """The stream as this learner saw it; the actor's own counts (plans, drops) are in its actor.json."""
+        return {"transitions_received": self.feed.received, "transitions_lost": self.feed.lost}
+
     def wake(self) -> None:
-        self.env.stop.set()  # a step or reset blocked on a held robot returns at once
+        if not self.stream:
+            self.env.stop.set()  # a step or reset blocked on a held robot returns at once

@@ -42,7 +42,13 @@ log = logging.getLogger(__name__)
 
 
 # Each part of ``adaptiveh up`` and its ``adaptiveh`` subcommand, in start order.
-PART_COMMANDS = {"robot_io": "robot-io", "vision": "vision", "monitor": "monitor", "learner": "learn"}
+PART_COMMANDS = {
+    "robot_io": "robot-io",
+    "actor": "act",
+    "vision": "vision",
+    "monitor": "monitor",
+    "learner": "learn",
+}
 
 
 def running_parts(config: str | Path) -> dict[str, int]:
@@ -92,6 +98,7 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
         needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
     if cfg.zenoh.tls is not None or cfg.zenoh.auth is not None:  # each part's certificate and password
         parts = ["robot_io", "learner"] + [p for p in ("vision", "monitor") if getattr(cfg, p) is not None]
+        parts += ["actor"] if cfg.learner.execution == "actor" else []
         for identity in ["supervisor", *(PART_IDENTITY[p] for p in parts)]:
             try:
                 zenoh_keys(cfg.zenoh, identity)
@@ -155,6 +162,13 @@ class Stack:
             del cmds["vision"]
         if self.cfg.monitor is None:
             del cmds["monitor"]
+        if self.cfg.learner.execution == "actor":
+            cmds["robot_io"] += [
+                "--watch",
+                "actor",
+            ]  # the actor commands the arm; the learner may come and go
+        else:
+            del cmds["actor"]
         if self.steps is not None:
             cmds["learner"] += ["--steps", str(self.steps)]
         base = [self.python, "-m", "deploy.cli"]
@@ -329,7 +343,7 @@ class Stack:
 
     def stop_parts(self) -> None:
         """SIGTERM learner first (it checkpoints), then the rest; SIGKILL whatever ignores it."""
-        for part in ("learner", "monitor", "vision", "robot_io"):
+        for part in ("learner", "actor", "monitor", "vision", "robot_io"):
             proc = self.procs.get(part)
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
@@ -343,6 +357,8 @@ class Stack:
     def summary(self, wall: float) -> dict[str, Any]:
         result_path = self.learner_dir / "result.json"
         result = json.loads(result_path.read_text()) if result_path.exists() else {}
+        actor_path = self.learner_dir / "actor.json"  # execution actor: the plans' account is the actor's
+        actor = json.loads(actor_path.read_text()) if actor_path.exists() else {}
         eps = result.get("episodes", [])
         succ = [bool(e.get("success")) for e in eps]
         q = max(1, len(succ) // 4)
@@ -359,9 +375,10 @@ class Stack:
             "segments": len(H),
             "reasons": dict(self.reasons),
             "H": h_stats(H) if H else None,
-            "dropped_actions": result.get("dropped_actions"),
+            "dropped_actions": actor.get("dropped_planned", result.get("dropped_actions")),
             "retreat_preemptions": result.get("retreat_preemptions"),
-            "retreat_dropped": result.get("retreat_dropped"),
+            "retreat_dropped": actor.get("retreat_dropped", result.get("retreat_dropped")),
+            "actor": actor or None,
             "safety_events": dict(self.safety_kinds),
             # Unsigned, replayed, undecodable or out-of-range messages the supervisor did not count
             "rejected_messages": dict(self.bus.bad_messages) if self.bus is not None else {},

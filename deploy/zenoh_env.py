@@ -99,22 +99,31 @@ def _seen_at(target: m.Target | None) -> float:
     return target.frame_stamp if target.frame_stamp > 0 else target.stamp
 
 
+def target_at(target: m.Target, when: float, horizon_s: float) -> tuple[np.ndarray, float]:
+    """(the target's position at time ``when``, its fix's age then): the fix moved on at its velocity.
+
+    A state and a target are captured at different times (a camera frame is 50-250 ms older than the
+    robot's state); the observation pairs the state with where the target is then, not where it was.
+    The age used is at most ``horizon_s`` (the freshness limit: an older fix is not acted on at all)."""
+    age = max(0.0, when - _seen_at(target))
+    position = np.asarray(target.position, float) + np.asarray(target.velocity, float) * min(age, horizon_s)
+    return position, age
+
+
 def _fixed_since(target: m.Target | None, stamp: float) -> bool:
     """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
     return target is not None and target.status == m.Target.TRACKING and _seen_at(target) >= stamp
 
 
-class ZenohReachEnv(gym.Env):
-    """The reach task over Zenoh. ``paused`` (set by the learner node) makes ``step`` wait."""
+class ReachSpec(gym.Env):
+    """The deployed reach task's spaces, state bounds and plan model, without a robot: what a learner
+    that learns from an actor's stream (``learner.execution: actor``) needs to build its agent. It is
+    never stepped; :class:`ZenohReachEnv` is the same task with the robot behind it."""
 
     metadata = {"render_modes": []}
 
-    def __init__(self, bus: Bus, settings: EnvSettings, planner: Planner | None = None) -> None:
-        """A ``bus`` with the stack's key signs this learner's chunks (``bus.signing``)."""
-        self.bus = bus
+    def __init__(self, settings: EnvSettings) -> None:
         self.settings = settings
-        self.planner = planner
-        self.segment = 0
         lo, hi = settings.workspace_lo, settings.workspace_hi
         low, high, self.obs_bounds = reach_observation_bounds(
             lo, hi, settings.target_lo, settings.target_hi, settings.target_speed_max
@@ -123,6 +132,27 @@ class ZenohReachEnv(gym.Env):
         s = settings.max_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
         self.period = 1.0 / settings.control_rate_hz
+
+    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
+        return predict_reach(obs, action, self.period, self.settings.max_step_m)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        raise RuntimeError("ReachSpec has no robot: the actor beside the arm steps the task")
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        raise RuntimeError("ReachSpec has no robot: the actor beside the arm steps the task")
+
+
+class ZenohReachEnv(ReachSpec):
+    """The reach task over Zenoh. ``paused`` (set by the learner node) makes ``step`` wait."""
+
+    def __init__(self, bus: Bus, settings: EnvSettings, planner: Planner | None = None) -> None:
+        """A ``bus`` with the stack's key signs this learner's chunks (``bus.signing``)."""
+        super().__init__(settings)
+        self.bus = bus
+        self.planner = planner
+        self.segment = 0
         self._cond = threading.Condition()
         self._state: m.RobotState | None = None
         self._state_count = 0
@@ -295,14 +325,15 @@ class ZenohReachEnv(gym.Env):
             target = self._target if target is None else target
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
-        obs = reach_observation(ee, state.ee_vel, target.position, target.velocity)
-        distance = reach_distance(ee, target.position)
+        position, age = target_at(target, state.stamp, self.settings.target_timeout_s)
+        obs = reach_observation(ee, state.ee_vel, position, target.velocity)
+        distance = reach_distance(ee, position)
         info = {
             "distance": distance,
             "success": reach_success(distance),
             "global_step": self.global_step,
             "target_speed": float(np.linalg.norm(target.velocity)),
-            "target_age_s": max(0.0, time.time() - target.stamp),
+            "target_age_s": age,
             "dropped_total": self.dropped_total,
             "tick": state.tick,  # the robot's control tick the observation is from
         }
@@ -311,7 +342,7 @@ class ZenohReachEnv(gym.Env):
     # -- gymnasium -----------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Home pose via the ``reset`` queryable; a seed gives the (simulated) target a new motion."""
-        super().reset(seed=seed)
+        gym.Env.reset(self, seed=seed)  # seeds np_random (ReachSpec.reset refuses: it has no robot)
         if self._sender is not None:
             self._sender.cancel()  # a late plan of the last episode must not play in this one
         deadline = time.monotonic() + self.settings.reset_timeout_s
@@ -443,10 +474,6 @@ class ZenohReachEnv(gym.Env):
             )
 
     # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
-    def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
-        """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
-        return predict_reach(obs, action, self.period, self.settings.max_step_m)
-
     def send(self, plan: Plan) -> None:
         """Publish ``plan`` as one chunk, now or ``latency_ms`` later; never blocks the learner."""
         item = (plan, self.segment, self.next_plan_reason)

@@ -32,11 +32,12 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
-from learner.plans import Plan, PlanChannel, QueuedChannel, rollout
+from learner.plans import Plan, PlanChannel, QueuedChannel, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, default_threshold
+from learner.snapshot import PolicySnapshot
 
 
 def _info_scalars(info: dict) -> dict[str, float]:
@@ -47,6 +48,38 @@ def _info_scalars(info: dict) -> dict[str, float]:
         elif isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v):
             out[k] = float(v)
     return out
+
+
+def kernels(cfg: AdaptiveHConfig, dim: int) -> tuple[GaussianKernel, GaussianKernel]:
+    """(the policy's kernel, the plan kernel that compares a plan's predicted state with the reached one)."""
+    for key in ("bandwidth", "plan_kernel_scale", "critic_bandwidth"):
+        n = np.size(getattr(cfg, key))
+        if getattr(cfg, key) is not None and n not in (1, dim):
+            raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
+    kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
+    return kernel, GaussianKernel(kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
+
+
+def initial_policy(cfg: AdaptiveHConfig, env: gym.Env, kernel: GaussianKernel) -> RKHSGaussianPolicy:
+    """The policy before any update: mean at the action box's centre, std ``sigma`` of its half-range."""
+    low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
+    return RKHSGaussianPolicy(
+        kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
+    )
+
+
+def retreat_threshold(cfg: AdaptiveHConfig, kernel: GaussianKernel) -> float:
+    if cfg.retreat_threshold is not None:
+        return cfg.retreat_threshold
+    return default_threshold(cfg.retreat_mode, kernel, cfg.epsilon)
+
+
+def segment_limit(cfg: AdaptiveHConfig) -> int:
+    """The longest segment: ``h_max`` with a retreat test, ``fixed_h`` without."""
+    return cfg.h_max if cfg.retreat_mode != "off" else cfg.fixed_h
+
+
+FIELD_BUDGET = 100  # the retreat's gradient field G: at most this many centres (and the policy budget)
 
 
 class AdaptiveH:
@@ -63,16 +96,8 @@ class AdaptiveH:
             raise ValueError("the RKHS learner needs a continuous (Box) action space")
         self.normalize = StateNormalizer.for_env(env)
         dim = len(self.normalize.centre)
-        for key in ("bandwidth", "plan_kernel_scale", "critic_bandwidth"):
-            n = np.size(getattr(cfg, key))
-            if getattr(cfg, key) is not None and n not in (1, dim):
-                raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
-        self.kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
-        plan_kernel = GaussianKernel(self.kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
-        low, high = env.action_space.low.astype(float), env.action_space.high.astype(float)
-        self.policy = RKHSGaussianPolicy(
-            self.kernel, low, high, cfg.sigma * (high - low) / 2.0, cfg.policy_budget, cfg.policy_ald
-        )
+        self.kernel, plan_kernel = kernels(cfg, dim)
+        self.policy = initial_policy(cfg, env, self.kernel)
         critic_kernel = self.kernel
         if cfg.critic_bandwidth is not None:
             critic_kernel = GaussianKernel(np.asarray(cfg.critic_bandwidth, float), dim)
@@ -84,26 +109,23 @@ class AdaptiveH:
             cfg.critic_forgetting,
             cfg.critic_p0,
             cfg.critic,
-            len(low),
+            len(self.policy.low),
             np.asarray(cfg.action_bandwidth, float),
             cfg.residual_baseline,
             cfg.visit_memory,
             cfg.residual_fit,
             cfg.critic_lambda,
         )
-        threshold = cfg.retreat_threshold
-        if threshold is None:
-            threshold = default_threshold(cfg.retreat_mode, self.kernel, cfg.epsilon)
         self.retreat = RetreatCheck(
             self.kernel,
             cfg.retreat_mode,
-            threshold,
+            retreat_threshold(cfg, self.kernel),
             cfg.retreat_smoothing,
-            min(cfg.policy_budget, 100),
+            min(cfg.policy_budget, FIELD_BUDGET),
             cfg.policy_ald,
             plan_kernel,
         )
-        self.segment_limit = cfg.h_max if cfg.retreat_mode != "off" else cfg.fixed_h
+        self.segment_limit = segment_limit(cfg)
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
         self.alpha = cfg.alpha  # the step per sample now (alpha_final: scheduled)
         self.rng = np.random.default_rng(seed)
@@ -182,14 +204,13 @@ class AdaptiveH:
         """Sample the segment's actions over model-predicted states, from where the plan will start:
         after the actions still queued ahead of it (``latency_steps``) play out, as the model sees it."""
         o = rollout(self.model, obs, self.channel.queued(self.config.latency_steps))
-        predicted, actions, raws = [o], [], []
-        for _ in range(self.segment_limit):
-            a, raw = self.policy.sample(self.normalize(o), self.rng)
-            o = self.model(o, a)
-            actions.append(a)
-            raws.append(raw)
-            predicted.append(o)
-        plan = Plan(self._next_plan_id, np.asarray(actions), np.asarray(raws), np.asarray(predicted))
+        plan = sample_plan(
+            self._next_plan_id,
+            o,
+            self.segment_limit,
+            self.model,
+            lambda x: self.policy.sample(self.normalize(x), self.rng),
+        )
         self._next_plan_id += 1
         self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {plan.plan_id: plan}
         return plan
@@ -241,13 +262,21 @@ class AdaptiveH:
         episode_over: bool,
         predicted: np.ndarray | None = None,
         reached: np.ndarray | None = None,
+        decided: str | None = None,
+        statistic: float | None = None,
+        noise: np.ndarray | None = None,
     ) -> SegmentRecord | None:
+        """Learn from one executed step. The segment closes by the agent's own test, or where ``decided``
+        says (an actor's: "open", "retreat", "h_max" or "episode_end", with the ``statistic`` it saw)."""
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
             # A NaN must never reach the dictionaries: drop the sample and close the segment.
             self.nonfinite_skipped += 1
             return self._close_segment("episode_end" if episode_over else "retreat")
-        log_prob, score = self.policy.log_prob_and_score(s, raw)  # under the policy that drew raw
+        if noise is None:
+            log_prob, score = self.policy.log_prob_and_score(s, raw)  # under the policy that drew raw
+        else:  # an actor's sample, drawn by a snapshot of this policy: scored by its own noise
+            log_prob, score = self.policy.noise_log_prob_and_score(noise)
         g, advantage = self._gradient(s, raw, score, reward, s_next, terminated)
         if not np.isfinite(float(np.linalg.norm(g))):
             self.nonfinite_skipped += 1
@@ -257,7 +286,9 @@ class AdaptiveH:
             self._accrue(s, score, advantage, episode_over)
         if self.replay is not None:
             self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
-        retreat = self.retreat.push(s, g, predicted, reached)
+        retreat = self.retreat.push(s, g, predicted, reached, decided is not None, statistic)
+        if decided is not None:  # an actor's plan: it evaluated the retreat where the plan played
+            return self._close_segment(decided) if decided != "open" else None
         if retreat:
             return self._close_segment("retreat")
         if len(self.retreat.states) >= self.segment_limit:
@@ -265,6 +296,68 @@ class AdaptiveH:
         if episode_over:
             return self._close_segment("episode_end")
         return None
+
+    # -- learning from an actor ------------------------------------------------------------------
+    def learn_transition(
+        self,
+        obs: np.ndarray,
+        raw: np.ndarray,
+        reward: float,
+        next_obs: np.ndarray,
+        terminated: bool,
+        truncated: bool,
+        info: dict,
+        predicted: np.ndarray | None,
+        end: str,
+        statistic: float | None = None,
+        noise: np.ndarray | None = None,
+    ) -> SegmentRecord | None:
+        """Learn from one tick an actor played (``deploy.actor_node``): it planned with a snapshot of this
+        policy, evaluated the retreat where the plan played and says how the segment stands (``end``).
+        The critic, the gradient field and the policy update are this learner's, as in :meth:`step_env`."""
+        if not self.retreat.states:
+            self._schedule()  # a new segment: this step's exploration std and step size
+        s = self.normalize(obs)
+        reached = None
+        if predicted is not None and np.all(np.isfinite(next_obs)):
+            predicted, reached = self.normalize(predicted), self.normalize(next_obs)
+        self.log.global_step += 1
+        self._ep_return += float(reward)
+        self._ep_len += 1
+        episode_over = terminated or truncated
+        record = self._learn_from(
+            s,
+            np.asarray(raw, float),
+            reward,
+            next_obs,
+            terminated,
+            episode_over,
+            predicted,
+            reached,
+            end,
+            statistic,
+            noise,
+        )
+        if episode_over:
+            self._finish_episode(info)
+            self._ep_return, self._ep_len = 0.0, 0  # the actor has reset the robot
+        return record
+
+    def snapshot(self) -> PolicySnapshot:
+        """What an actor plans with: this policy's mean, the retreat's gradient field, the std now."""
+        f, field = self.policy.f, self.retreat.field
+        action_dim = len(self.policy.low)
+        weights = field.weights  # (0, 0) until the field's first push sets its output size
+        return PolicySnapshot(
+            version=self.log.global_step,
+            policy_centers=f.dictionary.centers.copy(),
+            policy_weights=f.weights.copy(),
+            field_centers=field.dictionary.centers.copy(),
+            field_weights=weights.copy()
+            if weights.shape[1] == action_dim
+            else np.zeros((len(field), action_dim)),
+            sigma=self.policy.sigma.copy(),
+        )
 
     def _shape(self, s: np.ndarray, g: np.ndarray) -> np.ndarray:
         """The per-sample gradient as the update applies it: norm clipped at ``max_grad_norm``, scaled by the

@@ -32,6 +32,7 @@ class Plan:
     actions: np.ndarray
     raw: np.ndarray
     predicted: np.ndarray  # len(actions) + 1 observations
+    noise: np.ndarray | None = None  # raw - the mean that drew it, when the planner keeps it (an actor)
 
 
 @dataclass
@@ -70,6 +71,26 @@ def rollout(model: Model, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
     for a in actions:
         o = model(o, a)
     return o
+
+
+def sample_plan(
+    plan_id: int,
+    obs: np.ndarray,
+    n: int,
+    model: Model,
+    sample: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+) -> Plan:
+    """``n`` actions drawn by ``sample(obs) -> (clipped, raw)`` along the states ``model`` predicts from
+    ``obs``: the segment's plan, made wherever the policy is held (the learner, or an actor)."""
+    o = np.asarray(obs, float)
+    predicted, actions, raws = [o], [], []
+    for _ in range(n):
+        a, raw = sample(o)
+        o = model(o, a)
+        actions.append(a)
+        raws.append(raw)
+        predicted.append(o)
+    return Plan(plan_id, np.asarray(actions), np.asarray(raws), np.asarray(predicted))
 
 
 class QueuedChannel:

@@ -44,8 +44,19 @@ class RKHSGaussianPolicy:
 
     def sample(self, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """(executed action clipped to the box, unclipped sample used by the gradient)."""
-        raw = self.mean(s) + self.sigma * rng.standard_normal(self.low.shape)
-        return np.clip(raw, self.low, self.high), raw
+        action, raw, _ = self.draw(s, rng)
+        return action, raw
+
+    def draw(self, s: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sample` and the exploration noise it added to the mean (``raw - μ(s)``)."""
+        noise = self.sigma * rng.standard_normal(self.low.shape)
+        raw = self.mean(s) + noise
+        return np.clip(raw, self.low, self.high), raw, noise
+
+    def noise_log_prob_and_score(self, noise: np.ndarray) -> tuple[float, np.ndarray]:
+        """(log-likelihood, score) of a sample whose deviation from the mean that drew it was ``noise``: the
+        score of the policy that acted, whatever this policy's mean has become since (an actor's lag)."""
+        return self._log_density(noise), self._score(noise)
 
     def score(self, s: np.ndarray, raw_action: np.ndarray) -> np.ndarray:
         """The paper's ``Σ⁻¹(a - h(s))`` in f's units: ``r ⊙ Σ⁻¹(a - μ(s))``.

@@ -69,6 +69,17 @@ def default_threshold(mode: str, kernel: GaussianKernel, epsilon: float) -> floa
     return 0.5
 
 
+def plan_statistic(
+    field: RKHSFunction, plan_kernel: GaussianKernel, predicted: np.ndarray, reached: np.ndarray
+) -> float | None:
+    """Mode ``plan``'s ``k(ŝ,s) G(ŝ)ᵀG(s) / ‖G(ŝ)‖²``; None while ``G`` is zero where the plan went."""
+    dp, dr = field(predicted), field(reached)
+    n = float(dp @ dp)
+    if n <= 1e-300:
+        return None
+    return plan_kernel.pair(predicted, reached) * float(dp @ dr) / n
+
+
 class RetreatCheck:
     """Feed it each step's (state, gradient); it says whether the segment should end in a retreat."""
 
@@ -105,11 +116,14 @@ class RetreatCheck:
         g: np.ndarray,
         predicted: np.ndarray | None = None,
         reached: np.ndarray | None = None,
+        judged: bool = False,
+        statistic: float | None = None,
     ) -> bool:
         """Record a step; True when the retreat condition fails (statistic below threshold).
 
         ``predicted``/``reached``: the (normalised) state the running plan predicted after this step and
-        the one reached, for mode ``plan``.
+        the one reached, for mode ``plan``. ``judged``: the statistic was evaluated where the plan played
+        (an actor's ``statistic``, None: not evaluated); the gradient field still learns from ``g`` here.
         """
         self.states.append(s)
         self.grads.append(g)
@@ -117,7 +131,10 @@ class RetreatCheck:
             return False
         if self.field.weights.shape[1] != len(g):  # the field learns its output size from the first g
             self.field.weights = np.zeros((len(self.field), len(g)))
-        if self.mode == "literal":
+        if judged:
+            self._update_field(g, s)
+            stat = statistic
+        elif self.mode == "literal":
             stat = self._literal()
         elif self.mode == "local":
             stat = self._local(s, g)
@@ -167,11 +184,7 @@ class RetreatCheck:
         self._update_field(g, s)
         if predicted is None or reached is None:
             return None  # no plan running: nothing was assumed
-        dp, dr = self.field(predicted), self.field(reached)
-        n = float(dp @ dp)
-        if n <= 1e-300:
-            return None  # no gradient estimate where the plan went yet
-        return self.plan_kernel.pair(predicted, reached) * float(dp @ dr) / n
+        return plan_statistic(self.field, self.plan_kernel, predicted, reached)
 
     def state_dict(self) -> dict:
         return {

@@ -18,7 +18,7 @@ set -euo pipefail
 OUT=${1:-certs/test}
 shift || true
 HOSTS=("localhost" "127.0.0.1" "$@")
-IDS=${IDENTITIES:-"learner robot-io vision monitor supervisor router"}
+IDS=${IDENTITIES:-"learner actor robot-io vision monitor supervisor router"}
 DAYS=${DAYS:-825}
 
 command -v openssl >/dev/null || { echo "make_test_certs: openssl not found" >&2; exit 1; }

@@ -58,10 +58,16 @@ def learn_one_episode(config: Path, checkpoint_dir: Path) -> dict:
 
 @contextmanager
 def running_part(
-    part: str, cfg: dict, directory: Path, ready: Callable[[], Any], token: str = ""
+    part: str,
+    cfg: dict,
+    directory: Path,
+    ready: Callable[[], Any],
+    token: str = "",
+    args: tuple[str, ...] = (),
 ) -> Iterator[subprocess.Popen]:
     """``adaptiveh <part>`` on ``cfg`` (written to ``directory``) as a subprocess until the block ends;
-    ``token`` is the operator token it gets through its environment (as under ``adaptiveh up``).
+    ``token`` is the operator token it gets through its environment (as under ``adaptiveh up``); ``args``
+    are the command's own options.
 
     ``ready()`` waits for the part to be up (a probe's ``wait``, raising AssertionError on time-out); if
     it never is, the test fails with the part's own output. The part is terminated (then killed) after.
@@ -69,7 +75,7 @@ def running_part(
     path = directory / f"{part}.yaml"
     path.write_text(yaml.safe_dump(cfg))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", part, "--config", str(path), "--log-level", "WARNING"],
+        [sys.executable, "-m", "deploy.cli", part, "--config", str(path), "--log-level", "WARNING", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -358,6 +358,88 @@ class ResetReply(_message.Message):
     state: RobotState
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., ok: _Optional[bool] = ..., detail: _Optional[str] = ..., state: _Optional[_Union[RobotState, _Mapping]] = ...) -> None: ...
 
+class PolicySnapshot(_message.Message):
+    __slots__ = ("seq", "stamp", "version", "state_dim", "action_dim", "policy_centers", "policy_weights", "field_centers", "field_weights", "sigma", "mac")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    VERSION_FIELD_NUMBER: _ClassVar[int]
+    STATE_DIM_FIELD_NUMBER: _ClassVar[int]
+    ACTION_DIM_FIELD_NUMBER: _ClassVar[int]
+    POLICY_CENTERS_FIELD_NUMBER: _ClassVar[int]
+    POLICY_WEIGHTS_FIELD_NUMBER: _ClassVar[int]
+    FIELD_CENTERS_FIELD_NUMBER: _ClassVar[int]
+    FIELD_WEIGHTS_FIELD_NUMBER: _ClassVar[int]
+    SIGMA_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    version: int
+    state_dim: int
+    action_dim: int
+    policy_centers: _containers.RepeatedScalarFieldContainer[float]
+    policy_weights: _containers.RepeatedScalarFieldContainer[float]
+    field_centers: _containers.RepeatedScalarFieldContainer[float]
+    field_weights: _containers.RepeatedScalarFieldContainer[float]
+    sigma: _containers.RepeatedScalarFieldContainer[float]
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., version: _Optional[int] = ..., state_dim: _Optional[int] = ..., action_dim: _Optional[int] = ..., policy_centers: _Optional[_Iterable[float]] = ..., policy_weights: _Optional[_Iterable[float]] = ..., field_centers: _Optional[_Iterable[float]] = ..., field_weights: _Optional[_Iterable[float]] = ..., sigma: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
+
+class Transition(_message.Message):
+    __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise")
+    class SegmentEnd(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        SEGMENT_END_UNSPECIFIED: _ClassVar[Transition.SegmentEnd]
+        OPEN: _ClassVar[Transition.SegmentEnd]
+        RETREAT: _ClassVar[Transition.SegmentEnd]
+        H_MAX: _ClassVar[Transition.SegmentEnd]
+        EPISODE_END: _ClassVar[Transition.SegmentEnd]
+    SEGMENT_END_UNSPECIFIED: Transition.SegmentEnd
+    OPEN: Transition.SegmentEnd
+    RETREAT: Transition.SegmentEnd
+    H_MAX: Transition.SegmentEnd
+    EPISODE_END: Transition.SegmentEnd
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    STEP_FIELD_NUMBER: _ClassVar[int]
+    EPISODE_FIELD_NUMBER: _ClassVar[int]
+    SEGMENT_FIELD_NUMBER: _ClassVar[int]
+    OBS_FIELD_NUMBER: _ClassVar[int]
+    RAW_ACTION_FIELD_NUMBER: _ClassVar[int]
+    REWARD_FIELD_NUMBER: _ClassVar[int]
+    NEXT_OBS_FIELD_NUMBER: _ClassVar[int]
+    TERMINATED_FIELD_NUMBER: _ClassVar[int]
+    TRUNCATED_FIELD_NUMBER: _ClassVar[int]
+    SUCCESS_FIELD_NUMBER: _ClassVar[int]
+    DISTANCE_FIELD_NUMBER: _ClassVar[int]
+    PREDICTED_FIELD_NUMBER: _ClassVar[int]
+    END_FIELD_NUMBER: _ClassVar[int]
+    POLICY_VERSION_FIELD_NUMBER: _ClassVar[int]
+    STATISTIC_FIELD_NUMBER: _ClassVar[int]
+    TARGET_AGE_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
+    NOISE_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    step: int
+    episode: int
+    segment: int
+    obs: _containers.RepeatedScalarFieldContainer[float]
+    raw_action: _containers.RepeatedScalarFieldContainer[float]
+    reward: float
+    next_obs: _containers.RepeatedScalarFieldContainer[float]
+    terminated: bool
+    truncated: bool
+    success: bool
+    distance: float
+    predicted: _containers.RepeatedScalarFieldContainer[float]
+    end: Transition.SegmentEnd
+    policy_version: int
+    statistic: float
+    target_age: float
+    mac: bytes
+    noise: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ...) -> None: ...
+
 class Rejected(_message.Message):
     __slots__ = ("key", "error", "data")
     KEY_FIELD_NUMBER: _ClassVar[int]

@@ -52,6 +52,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         node.close()
     keys = ("summary", "dropped_actions", "retreat_preemptions")
-    json.dump({k: result[k] for k in keys}, sys.stdout, default=float)
+    json.dump({k: result[k] for k in keys if k in result}, sys.stdout, default=float)
     print()
     return 0

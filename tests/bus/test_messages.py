@@ -44,6 +44,31 @@ SAMPLES = [
         ),
     ),
     m.Rejected(key="adaptiveh/panda/cmd/chunk", error="bad", data=b"\x00\x01"),
+    m.PolicySnapshot(
+        version=40,
+        state_dim=2,
+        action_dim=1,
+        policy_centers=[0.1, 0.2],
+        policy_weights=[0.3],
+        field_centers=[],
+        field_weights=[],
+        sigma=[0.2],
+    ),
+    m.Transition(
+        step=5,
+        episode=1,
+        segment=2,
+        obs=[0.1, 0.2],
+        raw_action=[0.3],
+        noise=[0.01],
+        reward=-0.5,
+        next_obs=[0.2, 0.2],
+        predicted=[0.21, 0.2],
+        end=m.Transition.RETREAT,
+        policy_version=40,
+        statistic=0.2,
+        target_age=0.12,
+    ),
 ]
 
 

@@ -1,0 +1,216 @@
+"""The actor process (``adaptiveh act``): AdaptiveH's plans made and judged beside the arm.
+
+It runs where robot-io runs and holds the newest policy snapshot the learner published
+(``policy/snapshot``: signed, well-formed and newer than the one it has, else refused with a
+``bad_message`` safety event while the old one keeps running). Each segment it plans from the state the
+arm is in (``learner.actor.Actor``), plays the plan through robot-io (``deploy.zenoh_env``, plan
+execution), evaluates the retreat test at every tick and re-plans at once when it fails, at the plan's
+end or at the episode's end. Every tick goes to the learner on ``stream/transition`` with how its
+segment stands; the learner learns and publishes snapshots when it is ready, so learner latency
+delays improvement, not control, and a stopped or restarting learner stops nothing here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bus import messages as m
+from bus.node import Node
+from deploy.config import StackConfig
+from deploy.learner_node import env_settings
+from deploy.plan_channel import PlanDrop
+from deploy.policy_wire import snapshot_from_message
+from deploy.zenoh_env import EnvStopped, ZenohReachEnv
+from learner.actor import Actor
+from learner.config import AdaptiveHConfig
+from learner.plans import Executed, Plan
+from learner.snapshot import PolicySnapshot, SnapshotError
+
+log = logging.getLogger(__name__)
+END = {
+    "open": m.Transition.OPEN,
+    "retreat": m.Transition.RETREAT,
+    "h_max": m.Transition.H_MAX,
+    "episode_end": m.Transition.EPISODE_END,
+}
+
+
+class ActorNode(Node):
+    """Acts on its own thread from start to stop; ``counts`` and ``actor.json`` say what it did."""
+
+    alive_as = "actor"
+
+    def __init__(self, settings: StackConfig, control_token: str = "") -> None:
+        super().__init__(settings.name, settings.zenoh, token=control_token)
+        lc = settings.learner
+        # The actor plays each plan at once: the learner's latency delays snapshots, not plans.
+        self.env = ZenohReachEnv(self.bus, dataclasses.replace(env_settings(settings), latency_ms=0.0))
+        self.actor = Actor(self.env, AdaptiveHConfig(**lc.agent_config(settings.robot.period)), lc.seed)
+        self.out = Path(lc.checkpoint_dir) / "actor.json"
+        self.error = ""  # why acting ended, when it did not end by a stop
+        self._lock = threading.Lock()
+        self._offered: PolicySnapshot | None = None  # the newest accepted snapshot, taken at the next segment
+        self._episode_seed = lc.seed
+        self._plans: dict[int, Plan] = {}  # recent plans by id: a tick can still play the previous one
+        self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
+        self.retreat_dropped = 0
+        self.env.on_plan_dropped = self._on_plan_dropped
+        self._pub_transition = self.bus.publisher(m.TRANSITIONS)
+        self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
+        self.bus.subscribe(m.POLICY, self._on_snapshot, on_bad=self._on_bad_snapshot)
+        self.declare_alive()
+
+    # -- snapshots -----------------------------------------------------------------------------------
+    def _on_snapshot(self, msg: m.PolicySnapshot) -> None:
+        try:
+            snap = snapshot_from_message(msg)
+            snap.check(self.actor.state_dim, self.actor.action_dim, self.actor.max_centers)
+            with self._lock:
+                newest = max(self.actor.version, self._offered.version if self._offered else -1)
+                if snap.version <= newest:
+                    raise SnapshotError(f"version {snap.version} is not newer than {newest}")
+                self._offered = snap
+        except SnapshotError as exc:
+            self._refuse(str(exc))
+
+    def _on_bad_snapshot(self, topic: str, exc: Exception, data: bytes) -> None:
+        self._refuse(str(exc))  # undecodable, unsigned, forged or replayed
+
+    def _refuse(self, why: str) -> None:
+        self.counts["refused"] += 1
+        detail = f"policy snapshot refused, the policy of version {self.actor.version} keeps running: {why}"
+        log.warning("%s", detail)
+        self._pub_safety(m.SafetyEvent(kind=m.SafetyEvent.BAD_MESSAGE, detail=detail, held=False))
+
+    def _take_offered(self) -> None:
+        with self._lock:
+            snap, self._offered = self._offered, None
+        if snap is not None:
+            self.actor.load(snap)  # checked on arrival against the same dimensions
+            self.counts["snapshots"] += 1
+
+    # -- acting --------------------------------------------------------------------------------------
+    def workers(self) -> dict[str, Any]:
+        return {"act": self._act}
+
+    def wake(self) -> None:
+        self.env.stop.set()  # a reset or tick wait returns at once
+
+    def _act(self) -> None:
+        try:
+            while not self.stopping:
+                self._episode()
+        except EnvStopped:
+            pass
+        except Exception as exc:  # a takeover, a robot that never resets: the supervisor restarts us
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.exception("acting stopped")
+            self.request_stop()
+        finally:
+            self._write_counts()
+
+    def _episode(self) -> None:
+        obs, _ = self.env.reset(seed=self._episode_seed)
+        self._episode_seed += 1
+        episode = self.counts["episodes"]
+        plan: Plan | None = None
+        played = length = 0
+        while not self.stopping:
+            if plan is None:
+                self._take_offered()
+                plan = self.actor.plan(obs)
+                self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {
+                    plan.plan_id: plan
+                }
+                self.env.segment = self.counts["segments"]
+                self.env.send(plan)
+                played = length = 0
+            step = self.env.advance()
+            length += 1
+            stat, end = self._judge(plan, step, length, played)
+            played += step.plan_id == plan.plan_id
+            self._publish(episode, obs, step, stat, end, plan)
+            self.counts["steps"] += 1
+            if end != "open":
+                self.counts["segments"] += 1
+                self.counts["retreats"] += end == "retreat"
+                self.env.next_plan_reason = end
+                plan = None
+            if step.terminated or step.truncated:
+                self.counts["episodes"] += 1
+                return
+            obs = step.obs
+
+    def _judge(self, plan: Plan, step: Executed, length: int, played: int) -> tuple[float | None, str]:
+        """(the retreat statistic, how the segment stands after ``step``): as ``AdaptiveH`` closes one."""
+        stat = None
+        if step.plan_id == plan.plan_id:
+            stat = self.actor.statistic(plan.predicted[step.index + 1], step.obs)
+        if self.actor.retreats(stat):
+            return stat, "retreat"
+        if length >= self.actor.segment_limit:
+            return stat, "h_max"
+        if step.terminated or step.truncated:
+            return stat, "episode_end"
+        if step.plan_id == -1 and played:
+            return stat, "h_max"  # the plan is gone (played out, or cleared by an e-stop): re-plan now
+        return stat, "open"
+
+    def _publish(
+        self, episode: int, obs: np.ndarray, step: Executed, stat: float | None, end: str, plan: Plan
+    ) -> None:
+        source = self._plans.get(step.plan_id)
+        raw = source.raw[step.index] if source is not None else np.asarray(step.action, float)
+        noise = source.noise[step.index] if source is not None else np.zeros_like(raw)  # a hold: no draw
+        predicted = source.predicted[step.index + 1] if source is plan else ()
+        msg = m.Transition(
+            step=self.counts["steps"],
+            episode=episode,
+            segment=self.counts["segments"],
+            obs=np.asarray(obs, float).tolist(),
+            raw_action=np.asarray(raw, float).tolist(),
+            noise=np.asarray(noise, float).tolist(),
+            reward=step.reward,
+            next_obs=np.asarray(step.obs, float).tolist(),
+            terminated=step.terminated,
+            truncated=step.truncated,
+            success=bool(step.info.get("success", False)),
+            distance=float(step.info.get("distance", 0.0)),
+            predicted=np.asarray(predicted, float).tolist(),
+            end=END[end],
+            policy_version=max(self.actor.version, 0),
+            target_age=float(step.info.get("target_age_s", 0.0)),
+        )
+        if stat is not None:
+            msg.statistic = stat
+        self._pub_transition(msg)
+
+    def _on_plan_dropped(self, drop: PlanDrop) -> None:
+        if drop.by_reason == "retreat":
+            self.retreat_dropped += drop.dropped
+
+    def _write_counts(self) -> dict[str, Any]:
+        env = self.env
+        out = {
+            **self.counts,
+            "policy_version": self.actor.version,
+            "dropped_planned": env.book.dropped_planned,
+            "dropped_planned_moving": env.book.dropped_moving,
+            "retreat_dropped": self.retreat_dropped,
+            "preemptions": env.book.preemptions,
+            "target_waits": env.target_waits,
+            "outage_ticks": env.outage_ticks,
+            "suspended_ticks": env.suspended_ticks,
+            "robot_restarts": env.robot_restarts,
+            "error": self.error,
+        }
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        self.out.write_text(json.dumps(out, indent=1))
+        return out

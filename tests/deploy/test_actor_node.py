@@ -1,0 +1,204 @@
+"""The actor beside the arm (``adaptiveh act``) with robot-io, over real Zenoh, with the stack's key.
+
+robot-io (PyBullet) and the actor run as processes; the test is the vision part (it relays the
+simulator's target, and can make it stale) and, where needed, starts a learner. What is checked: plans
+are decided and played while the learner is stopped (SIGSTOP) for longer than a plan, and a learner killed
+outright loses at most the segment it was in; a policy snapshot that is malformed, unsigned or older is
+refused with a safety event while the policy in use keeps running; a stale target is never used as fresh.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import secrets
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from bus_probe import BusProbe
+from loopback import free_endpoint, unique_name
+from stack_helpers import running_part
+
+from bus import messages as m
+from bus.signing import mac_key
+from bus.transport import Bus, open_session, wait_listening
+from deploy.commands import TOKEN_ENV
+
+STALE_POSITION = (0.5, 0.28, 0.3)  # where the stale fixes say the target is (the truth is elsewhere)
+
+
+class Bench(BusProbe):
+    """The test's peer: relays sim/target_truth as vision's ``target`` (fresh, or stale when asked)."""
+
+    def __init__(self, cfg: dict, token: str) -> None:
+        super().__init__(Bus(open_session(_zenoh(cfg)), cfg["name"], mac_key(token)))
+        self.stale = threading.Event()
+        self.transitions = self.collect(m.TRANSITIONS, arrival=False)
+        self.safety = self.collect(m.EVENTS_SAFETY, arrival=False)
+        self.states = self.collect(m.STATE)
+        self.chunks = self.collect(m.CMD_CHUNK)
+        self.segments = self.collect(m.EVENTS_RETREAT, arrival=False)
+        self._target = self.bus.publisher(m.TARGET)
+        self.bus.subscribe(m.TARGET_TRUTH, self._relay)
+
+    def _relay(self, truth: m.Target) -> None:
+        if self.stale.is_set():  # a fix two seconds old, somewhere else: a camera that froze
+            msg = m.Target(position=STALE_POSITION, velocity=[0, 0, 0], covariance=[0.0] * 9, valid=True)
+            msg.status, msg.frame_stamp = m.Target.TRACKING, time.time() - 2.0
+        else:
+            msg = m.Target()
+            msg.CopyFrom(truth)
+            msg.ClearField("mac")
+        self._target(msg)
+
+    def versions(self) -> list[int]:
+        with self.lock:
+            return [t.policy_version for t in self.transitions]
+
+    def refusals(self) -> list[str]:
+        with self.lock:
+            return [e.detail for e in self.safety if "policy snapshot refused" in e.detail]
+
+
+def _zenoh(cfg: dict) -> m.Any:
+    from bus.transport import ZenohConfig
+
+    return ZenohConfig(hub=cfg["zenoh"]["hub"])
+
+
+@pytest.fixture
+def arm(tmp_path: Path):
+    """robot-io (watching the actor) and the actor, up and acting; yields (config dict, bench, token)."""
+    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg.pop("vision")
+    cfg.pop("monitor")
+    cfg["name"] = unique_name("act")
+    cfg["zenoh"]["hub"] = free_endpoint()
+    cfg["learner"].update(steps=100_000, checkpoint_dir=str(tmp_path / "learner"), execution="actor")
+    token = secrets.token_urlsafe(12)
+    joined: list[Bench] = []
+
+    def robot_up() -> None:
+        wait_listening(cfg["zenoh"]["hub"])
+        joined.append(Bench(cfg, token))
+        joined[0].wait(lambda: len(joined[0].states) > 3, 60, "robot states")
+
+    with running_part("robot-io", cfg, tmp_path, robot_up, token=token, args=("--watch", "actor")):
+        bench = joined[0]
+        with running_part(
+            "act",
+            cfg,
+            tmp_path,
+            lambda: bench.wait(lambda: len(bench.transitions) > 20, 60, "the actor's ticks"),
+            token=token,
+        ):
+            yield cfg, bench, token
+        bench.bus.close()
+
+
+def _learner(cfg: dict, tmp_path: Path, token: str) -> subprocess.Popen:
+    path = tmp_path / "learner.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return subprocess.Popen(
+        [sys.executable, "-m", "deploy.cli", "learn", "--config", str(path), "--log-level", "WARNING"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, TOKEN_ENV: token},
+    )
+
+
+def test_plans_play_while_the_learner_is_stopped_and_a_killed_learner_loses_at_most_a_segment(arm, tmp_path):
+    cfg, bench, token = arm
+    learner = _learner(cfg, tmp_path, token)
+    try:
+        bench.wait(lambda: max(bench.versions()) > 0, 60, "a snapshot of the learner in use")
+        os.kill(learner.pid, signal.SIGSTOP)
+        t0, stop_s = time.time(), 4.0  # longer than a plan (h_max 50 ticks at 20 Hz: 2.5 s)
+        time.sleep(stop_s)
+        with bench.lock:
+            chunks = {c.seq for t, c in bench.chunks if t0 < t < t0 + stop_s}
+            ticks = [s for t, s in bench.states if t0 < t < t0 + stop_s]
+            held = [e.detail for e in bench.safety if m.label(e, "kind") in ("watchdog", "liveliness")]
+        os.kill(learner.pid, signal.SIGCONT)
+        assert len(chunks) >= 2, "the actor made no new plan while the learner was stopped"
+        playing = sum(s.played_chunk >= 0 for s in ticks) / max(len(ticks), 1)
+        assert len(ticks) >= 60 and playing > 0.8, f"{playing:.0%} of {len(ticks)} ticks played a plan"
+        assert not held, held
+        # The learner catches up; then a SIGKILL (no goodbye): its checkpoint is no older than the last
+        # segment it announced (each segment end is checkpointed before it is announced).
+        n = len(bench.segments)
+        bench.wait(lambda: len(bench.segments) > n + 5, 30, "segments after the learner continued")
+        os.kill(learner.pid, signal.SIGKILL)
+        learner.wait(10)
+        with bench.lock:
+            announced = max(e.global_step for e in bench.segments)
+        with open(Path(cfg["learner"]["checkpoint_dir"]) / "checkpoint.pkl", "rb") as fh:
+            kept = pickle.load(fh)["log"]["global_step"]
+        assert kept >= announced, f"checkpoint at step {kept}, segment announced at {announced}"
+    finally:
+        learner.kill()
+        learner.wait(10)
+
+
+def _snapshot(version: int, centers: int = 2) -> m.PolicySnapshot:
+    rng = np.random.default_rng(version)
+    return m.PolicySnapshot(
+        version=version,
+        state_dim=15,
+        action_dim=3,
+        policy_centers=rng.uniform(-1, 1, (centers, 15)).ravel().tolist(),
+        policy_weights=(0.1 * rng.standard_normal((centers, 3))).ravel().tolist(),
+        field_centers=rng.uniform(-1, 1, (centers, 15)).ravel().tolist(),
+        field_weights=rng.standard_normal((centers, 3)).ravel().tolist(),
+        sigma=[0.015] * 3,
+    )
+
+
+def test_a_bad_snapshot_is_refused_with_a_safety_event_and_the_policy_in_use_keeps_running(arm):
+    cfg, bench, token = arm
+    put = bench.bus.publisher(m.POLICY)  # signed with the stack's key
+    put(_snapshot(1000))
+    bench.wait(lambda: bench.versions()[-1] == 1000, 10, "the signed, newer snapshot in use")
+    malformed = _snapshot(2000)
+    del malformed.policy_centers[-1]  # 29 values: not rows of 15
+    stranger = Bus(open_session(_zenoh(cfg)), cfg["name"])  # no key: its snapshots are unsigned
+    try:
+        cases = [
+            (lambda: put(malformed), "rows of 15"),
+            (lambda: stranger.publisher(m.POLICY)(_snapshot(3000)), "not signed"),
+            (lambda: put(_snapshot(500)), "not newer than 1000"),
+        ]
+        for send, why in cases:
+            n = len(bench.refusals())
+            send()
+            bench.wait(lambda n=n: len(bench.refusals()) > n, 5, f"a refusal ({why})")
+            assert why in bench.refusals()[-1]
+    finally:
+        stranger.close()
+    n = len(bench.transitions)
+    bench.wait(lambda: len(bench.transitions) > n + 40, 10, "ticks after the refusals")
+    assert set(bench.versions()[n:]) == {1000}
+
+
+def test_a_stale_target_is_never_used_as_fresh(arm):
+    cfg, bench, token = arm
+    limit = cfg["learner"].get("target_timeout_s", 0.5)
+    n = len(bench.transitions)
+    bench.stale.set()
+    time.sleep(2.0)
+    bench.stale.clear()
+    bench.wait(lambda: len(bench.transitions) > n + 40, 20, "the actor acting again on fresh fixes")
+    with bench.lock:
+        seen = list(bench.transitions)[n:]
+    ages = [t.target_age for t in seen]
+    assert max(ages) <= limit, f"a transition with a target {max(ages):.2f} s old"
+    targets = np.array([t.next_obs[6:9] for t in seen] + [t.obs[6:9] for t in seen])
+    assert np.min(np.linalg.norm(targets - STALE_POSITION, axis=1)) > 0.02, "the stale fix was acted on"

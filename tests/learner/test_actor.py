@@ -1,0 +1,104 @@
+"""The actor (``learner.actor``) plans and judges plans as the learner would, from the learner's snapshot;
+a snapshot that does not fit is refused whole; the learner learns from an actor's ticks
+(``AdaptiveH.learn_transition``) with the segments the actor decided."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import sim  # noqa: F401  (registers the NS environments)
+from learner.actor import Actor
+from learner.adaptiveh import AdaptiveH
+from learner.config import AdaptiveHConfig
+from learner.plans import rollout
+from learner.retreat import plan_statistic
+from learner.snapshot import SnapshotError
+
+CONFIG = AdaptiveHConfig(execution="plan", h_max=20, policy_budget=40, critic_budget=40)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    env = gym.make("NSCartPoleContinuous-v0")
+    agent = AdaptiveH(env, CONFIG, seed=1)
+    agent.learn(600)
+    assert len(agent.policy.f) > 0 and len(agent.retreat.field) > 0
+    return env, agent
+
+
+def test_an_actor_with_the_learners_snapshot_plans_and_judges_as_the_learner(trained):
+    env, agent = trained
+    actor = Actor(env, CONFIG, seed=0)
+    actor.load(agent.snapshot())
+    assert actor.version == agent.log.global_step
+    rng = np.random.default_rng(0)
+    lo, hi = agent.normalize.centre - agent.normalize.scale, agent.normalize.centre + agent.normalize.scale
+    for _ in range(20):
+        obs, reached = rng.uniform(lo, hi), rng.uniform(lo, hi)
+        np.testing.assert_allclose(
+            actor.policy.mean(actor.normalize(obs)), agent.policy.mean(agent.normalize(obs))
+        )
+        ours = actor.statistic(obs, reached)
+        theirs = plan_statistic(
+            agent.retreat.field, agent.retreat.plan_kernel, agent.normalize(obs), agent.normalize(reached)
+        )
+        assert ours == pytest.approx(theirs)
+    plan = actor.plan(obs)
+    assert plan.actions.shape == (CONFIG.h_max, 1) and len(plan.predicted) == CONFIG.h_max + 1
+    np.testing.assert_allclose(plan.predicted[-1], rollout(actor.model, obs, plan.actions))
+    np.testing.assert_allclose(plan.actions, np.clip(plan.raw, -1, 1))
+
+
+@pytest.mark.parametrize(
+    "change, complaint",
+    [
+        (lambda s: {"policy_centers": s.policy_centers[:, :2]}, "policy centres"),
+        (lambda s: {"field_weights": s.field_weights[:-1]}, "field weights"),
+        (lambda s: {"policy_weights": np.full_like(s.policy_weights, np.nan)}, "finite"),
+        (lambda s: {"sigma": -s.sigma}, "sigma"),
+        (
+            lambda s: {
+                "policy_centers": np.zeros((500, s.policy_centers.shape[1])),
+                "policy_weights": np.zeros((500, 1)),
+            },
+            "budget",
+        ),
+    ],
+)
+def test_a_snapshot_that_does_not_fit_is_refused_and_the_old_policy_stays(trained, change, complaint):
+    env, agent = trained
+    actor = Actor(env, CONFIG, seed=0)
+    good = agent.snapshot()
+    actor.load(good)
+    obs = np.zeros(len(agent.normalize.centre)) + 0.1
+    before = actor.policy.mean(actor.normalize(obs))
+    bad = dataclasses.replace(good, version=good.version + 1, **change(good))
+    with pytest.raises(SnapshotError, match=complaint):
+        actor.load(bad)
+    assert actor.version == good.version
+    np.testing.assert_array_equal(actor.policy.mean(actor.normalize(obs)), before)
+
+
+def test_the_learner_closes_segments_where_the_actor_says():
+    env = gym.make("NSCartPoleContinuous-v0")
+    agent = AdaptiveH(env, CONFIG, seed=0)
+    obs, _ = env.reset(seed=0)
+    ends = ["open", "open", "retreat", "open", "h_max", "open", "open", "open", "episode_end"]
+    stats = [0.9, None, 0.1, 0.8, 0.7, None, None, 0.6, 0.5]
+    records = []
+    for i, (end, stat) in enumerate(zip(ends, stats, strict=True)):
+        raw = np.array([0.3])
+        nxt, reward, _, _, _ = env.step(raw)
+        last = i == len(ends) - 1
+        records.append(agent.learn_transition(obs, raw, reward, nxt, False, last, {}, nxt + 0.01, end, stat))
+        obs = nxt
+    closed = [r for r in records if r is not None]
+    assert [(r.reason, r.H) for r in closed] == [("retreat", 3), ("h_max", 2), ("episode_end", 4)]
+    assert closed[0].statistic == [0.9, 0.1]  # the actor's statistic, where it evaluated one
+    assert agent.log.global_step == 9 and agent.log.episode_count == 1
+    assert agent.log.episodes[0].length == 9
+    assert agent.snapshot().version == 9
