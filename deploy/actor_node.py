@@ -16,6 +16,7 @@ import dataclasses
 import json
 import logging
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,7 @@ from learner.actor import Actor
 from learner.config import AdaptiveHConfig
 from learner.plans import Executed, Plan
 from learner.snapshot import PolicySnapshot, SnapshotError
+from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
 END = {
@@ -61,6 +63,7 @@ class ActorNode(Node):
         self._plans: dict[int, Plan] = {}  # recent plans by id: a tick can still play the previous one
         self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
         self.retreat_dropped = 0
+        self._refusals = EventThrottle("refused snapshots")
         self.env.on_plan_dropped = self._on_plan_dropped
         self._pub_transition = self.bus.publisher(m.TRANSITIONS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
@@ -78,16 +81,21 @@ class ActorNode(Node):
                     raise SnapshotError(f"version {snap.version} is not newer than {newest}")
                 self._offered = snap
         except SnapshotError as exc:
-            self._refuse(str(exc))
+            self._refuse(str(exc), log_it=True)
 
     def _on_bad_snapshot(self, topic: str, exc: Exception, data: bytes) -> None:
-        self._refuse(str(exc))  # undecodable, unsigned, forged or replayed
+        self._refuse(str(exc))  # undecodable, unsigned, forged or replayed: the bus has logged it
 
-    def _refuse(self, why: str) -> None:
+    def _refuse(self, why: str, log_it: bool = False) -> None:
+        """One safety event a second at most (with the count held back): a flood must not flood."""
         self.counts["refused"] += 1
+        if log_it:
+            self.bus.report_bad(m.POLICY.name, m.MessageError(why, "out_of_range"))  # rate-limited
         detail = f"policy snapshot refused, the policy of version {self.actor.version} keeps running: {why}"
-        log.warning("%s", detail)
-        self._pub_safety(m.SafetyEvent(kind=m.SafetyEvent.BAD_MESSAGE, detail=detail, held=False))
+        with self._lock:
+            detail = self._refusals.detail(detail, time.monotonic())
+        if detail is not None:
+            self._pub_safety(m.SafetyEvent(kind=m.SafetyEvent.BAD_MESSAGE, detail=detail, held=False))
 
     def _take_offered(self) -> None:
         with self._lock:
@@ -123,35 +131,35 @@ class ActorNode(Node):
         plan: Plan | None = None
         played = length = 0
         while not self.stopping:
-            if plan is None:
+            # A plan is made from the newest tick only: ticks that played while this process was held up
+            # (a stall, a loaded machine) are streamed first, never planned from.
+            if plan is None and not self.env.backlog():
                 self._take_offered()
                 plan = self.actor.plan(obs)
-                self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {
-                    plan.plan_id: plan
-                }
+                recent = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2}
+                self._plans = recent | {plan.plan_id: plan}
                 self.env.segment = self.counts["segments"]
                 self.env.send(plan)
-                played = length = 0
             step = self.env.advance()
             length += 1
             stat, end = self._judge(plan, step, length, played)
-            played += step.plan_id == plan.plan_id
+            played += plan is not None and step.plan_id == plan.plan_id
             self._publish(episode, obs, step, stat, end, plan)
             self.counts["steps"] += 1
             if end != "open":
                 self.counts["segments"] += 1
                 self.counts["retreats"] += end == "retreat"
                 self.env.next_plan_reason = end
-                plan = None
+                plan, played, length = None, 0, 0
             if step.terminated or step.truncated:
                 self.counts["episodes"] += 1
                 return
             obs = step.obs
 
-    def _judge(self, plan: Plan, step: Executed, length: int, played: int) -> tuple[float | None, str]:
+    def _judge(self, plan: Plan | None, step: Executed, length: int, played: int) -> tuple[float | None, str]:
         """(the retreat statistic, how the segment stands after ``step``): as ``AdaptiveH`` closes one."""
         stat = None
-        if step.plan_id == plan.plan_id:
+        if plan is not None and step.plan_id == plan.plan_id:
             stat = self.actor.statistic(plan.predicted[step.index + 1], step.obs)
         if self.actor.retreats(stat):
             return stat, "retreat"
@@ -164,12 +172,18 @@ class ActorNode(Node):
         return stat, "open"
 
     def _publish(
-        self, episode: int, obs: np.ndarray, step: Executed, stat: float | None, end: str, plan: Plan
+        self,
+        episode: int,
+        obs: np.ndarray,
+        step: Executed,
+        stat: float | None,
+        end: str,
+        plan: Plan | None,
     ) -> None:
         source = self._plans.get(step.plan_id)
         raw = source.raw[step.index] if source is not None else np.asarray(step.action, float)
         noise = source.noise[step.index] if source is not None else np.zeros_like(raw)  # a hold: no draw
-        predicted = source.predicted[step.index + 1] if source is plan else ()
+        predicted = source.predicted[step.index + 1] if source is not None and source is plan else ()
         msg = m.Transition(
             step=self.counts["steps"],
             episode=episode,

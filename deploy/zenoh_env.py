@@ -110,6 +110,11 @@ def target_at(target: m.Target, when: float, horizon_s: float) -> tuple[np.ndarr
     return position, age
 
 
+def _usable(target: m.Target | None, when: float, limit_s: float) -> bool:
+    """A fix not older than ``limit_s`` at time ``when`` (a state's stamp)."""
+    return target is not None and when - _seen_at(target) <= limit_s
+
+
 def _fixed_since(target: m.Target | None, stamp: float) -> bool:
     """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
     return target is not None and target.status == m.Target.TRACKING and _seen_at(target) >= stamp
@@ -538,12 +543,21 @@ class ZenohReachEnv(ReachSpec):
                 continue
             return state, target
 
+    def backlog(self) -> int:
+        """Ticks that played and are not yet returned by ``advance`` (more than none: this side lags)."""
+        with self._cond:
+            return len(self._ticks)
+
     def advance(self) -> Executed:
         """The robot's next control tick as an executed step (see the module docstring)."""
         self._check_taken_over()
-        if not self._wait(self._target_fresh, 0.0):
-            self._hold_for_target()
-        state, target = self._next_tick()
+        while True:
+            if not self._wait(self._target_fresh, 0.0):
+                self._hold_for_target()
+            state, target = self._next_tick()
+            if _usable(target, state.stamp, self.settings.target_timeout_s):
+                break
+            self.outage_ticks += 1  # paired with a fix that went stale between the check and the tick
         restarted = self._consume_restart()  # this tick is the new robot-io's: the episode ends with it
         with self._cond:
             self._last_state = state

@@ -130,7 +130,8 @@ def test_plans_play_while_the_learner_is_stopped_and_a_killed_learner_loses_at_m
         os.kill(learner.pid, signal.SIGCONT)
         assert len(chunks) >= 2, "the actor made no new plan while the learner was stopped"
         playing = sum(s.played_chunk >= 0 for s in ticks) / max(len(ticks), 1)
-        assert len(ticks) >= 60 and playing > 0.8, f"{playing:.0%} of {len(ticks)} ticks played a plan"
+        assert len(ticks) >= 60 and playing >= 0.6, f"{playing:.0%} of {len(ticks)} ticks played a plan"
+        assert {s.mode for s in ticks} == {m.RobotState.RUNNING}, "the arm was held"
         assert not held, held
         # The learner catches up; then a SIGKILL (no goodbye): its checkpoint is no older than the last
         # segment it announced (each segment end is checkpointed before it is announced).
@@ -177,6 +178,7 @@ def test_a_bad_snapshot_is_refused_with_a_safety_event_and_the_policy_in_use_kee
             (lambda: put(_snapshot(500)), "not newer than 1000"),
         ]
         for send, why in cases:
+            time.sleep(1.1)  # the actor reports at most one refusal a second (a flood must not flood)
             n = len(bench.refusals())
             send()
             bench.wait(lambda n=n: len(bench.refusals()) > n, 5, f"a refusal ({why})")
@@ -192,9 +194,16 @@ def test_a_stale_target_is_never_used_as_fresh(arm):
     cfg, bench, token = arm
     limit = cfg["learner"].get("target_timeout_s", 0.5)
     n = len(bench.transitions)
+    t0 = time.time()
     bench.stale.set()
     time.sleep(2.0)
     bench.stale.clear()
+    hold_from = (
+        t0 + limit + 0.05 + cfg["robot"]["watchdog_timeout_s"] + 0.3
+    )  # a one-tick stay, then the watchdog
+    with bench.lock:
+        modes = {m.label(s, "mode") for _, s in bench.states if hold_from <= s.stamp <= t0 + 2.0}
+    assert modes == {"held"}, f"the arm was {modes} while the target was stale"
     bench.wait(lambda: len(bench.transitions) > n + 40, 20, "the actor acting again on fresh fixes")
     with bench.lock:
         seen = list(bench.transitions)[n:]

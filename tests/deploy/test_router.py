@@ -25,7 +25,9 @@ def test_two_routers_carry_a_run(tmp_path):
     cfg = yaml.safe_load(open("configs/sim.yaml"))
     cfg["name"] = unique_name("rt")
     cfg.pop("vision")
-    cfg["learner"].update(steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"))
+    cfg["learner"].update(
+        steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"), execution="plan"
+    )  # a learner on another machine driving the arm through the routers
     robot_cfg, learner_cfg = tmp_path / "robot.yaml", tmp_path / "learner.yaml"
     robot_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e1]}}))
     learner_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e2]}}))
@@ -53,7 +55,9 @@ def test_a_restarted_router_the_arm_holds_and_the_run_resumes(tmp_path):
     cfg["name"] = unique_name("rr")
     cfg.pop("vision")
     cfg["zenoh"] = {"mode": "client", "connect": [endpoint]}
-    cfg["learner"].update(steps=100000, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"))
+    cfg["learner"].update(
+        steps=100000, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"), execution="plan"
+    )
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))
     parts = [
