@@ -62,6 +62,7 @@ class ActorNode(Node):
         self._episode_seed = lc.seed
         self._plans: dict[int, Plan] = {}  # recent plans by id: a tick can still play the previous one
         self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
+        self.retreat_preemptions = 0  # a retreat's plan preempting the rest of the one before
         self.retreat_dropped = 0
         self._refusals = EventThrottle("refused snapshots")
         self.env.on_plan_dropped = self._on_plan_dropped
@@ -208,6 +209,7 @@ class ActorNode(Node):
 
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
         if drop.by_reason == "retreat":
+            self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped
 
     def _write_counts(self) -> dict[str, Any]:
@@ -217,6 +219,7 @@ class ActorNode(Node):
             "policy_version": self.actor.version,
             "dropped_planned": env.book.dropped_planned,
             "dropped_planned_moving": env.book.dropped_moving,
+            "retreat_preemptions": self.retreat_preemptions,
             "retreat_dropped": self.retreat_dropped,
             "preemptions": env.book.preemptions,
             "target_waits": env.target_waits,

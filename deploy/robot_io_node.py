@@ -284,7 +284,7 @@ class RobotIONode(Node):
             try:
                 # A reset is how a learner session takes over, numbering on from its next chunk.
                 self.controller.take_over(request.session, request.next_chunk)
-                state = self.controller.reset(seed)
+                state = self.controller.reset(seed, time.monotonic)
                 reply = m.ResetReply(ok=True, state=robot_state_message(state, self.instance, time.time()))
             except (TakeoverRefused, ArmHeld) as exc:  # a foreign session (a safety event), or held
                 reply = m.ResetReply(ok=False, detail=f"reset refused: {exc}")

@@ -376,7 +376,7 @@ class Stack:
             "reasons": dict(self.reasons),
             "H": h_stats(H) if H else None,
             "dropped_actions": actor.get("dropped_planned", result.get("dropped_actions")),
-            "retreat_preemptions": result.get("retreat_preemptions"),
+            "retreat_preemptions": actor.get("retreat_preemptions", result.get("retreat_preemptions")),
             "retreat_dropped": actor.get("retreat_dropped", result.get("retreat_dropped")),
             "actor": actor or None,
             "safety_events": dict(self.safety_kinds),

@@ -9,6 +9,7 @@ commands, which only touch the queue and the safety flags under a lock; the cont
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -370,18 +371,25 @@ class RobotController:
         self.backend.send_joint_command(result.q)
         return action
 
-    def reset(self, seed: int | None = None) -> ArmState:
+    def reset(self, seed: int | None = None, clock: Callable[[], float] | None = None) -> ArmState:
         """Home pose and (in simulation) a new target motion; clears the queue and the watchdog. Refused
-        with ``ArmHeld`` while the operator or a fault holds the arm: homing is a motion too."""
+        with ``ArmHeld`` while the operator or a fault holds the arm: homing is a motion too.
+
+        ``clock`` (the control loop's): the reset counts as a command when homing is done, so the watchdog
+        holds the arm if no chunk follows within its timeout (a commander that went quiet after homing,
+        e.g. waiting for a target); without it the watchdog waits for the first chunk."""
         with self._lock:
             if not self.safety.accepts_commands():
                 held = ", ".join(sorted(self.safety.reasons - {"watchdog"}))
                 raise ArmHeld(f"the arm is held ({held}): no reset until it is released")
             self.queue.clear()
             self._played = (-1, -1, 0.0)
-            self.safety.last_command = None
             self.safety.clear("watchdog", "reset")
+            self.safety.last_command = None
         self.backend.reset(self.home, seed)
+        if clock is not None:
+            with self._lock:
+                self.safety.last_command = clock()
         self._unreachable = False
         return self.state()
 

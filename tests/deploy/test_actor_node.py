@@ -40,6 +40,7 @@ class Bench(BusProbe):
     def __init__(self, cfg: dict, token: str) -> None:
         super().__init__(Bus(open_session(_zenoh(cfg)), cfg["name"], mac_key(token)))
         self.stale = threading.Event()
+        self.silent = threading.Event()
         self.transitions = self.collect(m.TRANSITIONS, arrival=False)
         self.safety = self.collect(m.EVENTS_SAFETY, arrival=False)
         self.states = self.collect(m.STATE)
@@ -49,6 +50,8 @@ class Bench(BusProbe):
         self.bus.subscribe(m.TARGET_TRUTH, self._relay)
 
     def _relay(self, truth: m.Target) -> None:
+        if self.silent.is_set():  # a camera that died: no target at all
+            return
         if self.stale.is_set():  # a fix two seconds old, somewhere else: a camera that froze
             msg = m.Target(position=STALE_POSITION, velocity=[0, 0, 0], covariance=[0.0] * 9, valid=True)
             msg.status, msg.frame_stamp = m.Target.TRACKING, time.time() - 2.0
@@ -190,14 +193,15 @@ def test_a_bad_snapshot_is_refused_with_a_safety_event_and_the_policy_in_use_kee
     assert set(bench.versions()[n:]) == {1000}
 
 
-def test_a_stale_target_is_never_used_as_fresh(arm):
+@pytest.mark.parametrize("outage", ["stale", "silent"])
+def test_a_stale_target_is_never_used_as_fresh(arm, outage):
     cfg, bench, token = arm
     limit = cfg["learner"].get("target_timeout_s", 0.5)
     n = len(bench.transitions)
     t0 = time.time()
-    bench.stale.set()
+    getattr(bench, outage).set()
     time.sleep(2.0)
-    bench.stale.clear()
+    getattr(bench, outage).clear()
     hold_from = (
         t0 + limit + 0.05 + cfg["robot"]["watchdog_timeout_s"] + 0.3
     )  # a one-tick stay, then the watchdog

@@ -80,3 +80,18 @@ def test_ticks_are_numbered_and_name_what_they_played(controller):
     played = [(s.played_chunk, s.played_index, s.queue_len) for s in states]
     assert played == [(7, 0, 1), (7, 1, 0), (-1, -1, 0)]
     assert controller.react(10.1).state.tick == t0 + 3  # a state between ticks repeats the tick
+
+
+def test_a_reset_counts_as_a_command_so_a_quiet_commander_leaves_the_arm_held(controller):
+    """After homing, no chunk within the watchdog timeout holds the arm (the commander may be waiting
+    for a target it lost); the first chunk releases it. Without the control clock, nothing is armed."""
+    controller.obey(SESSION)
+    now = [50.0]
+    controller.reset(clock=lambda: now[0])
+    timeout = controller.safety.watchdog_timeout_s
+    assert controller.tick(50.0 + 0.5 * timeout).state.mode == "running"
+    assert controller.tick(50.0 + 1.5 * timeout).state.mode == "held"
+    assert controller.push_chunk(SESSION, 1, np.tile(UP_Y, (3, 1)), 60.0) == "accepted"
+    assert controller.tick(60.01).state.mode == "running"
+    controller.reset()
+    assert controller.tick(70.0).state.mode == "running"  # no clock: the watchdog waits for a chunk
