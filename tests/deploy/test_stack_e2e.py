@@ -4,7 +4,8 @@ monitor and AdaptiveH learning NS Reach, all separate processes; then the record
 Bar (the issue's): the last quarter's success rate above the first quarter's and at least SUCCESS_BAR,
 its mean final distance below the first quarter's; retreats happen and at least one retreat's chunk
 preempts queued actions on the robot (dropped > 0). Marked slow: `.ci/run` runs it after the default run
-(``pytest -m e2e`` runs it alone). Measured in plan execution (configs/sim.yaml's default since 25aaa49),
+(``pytest -m e2e`` runs it alone). It runs configs/sim.yaml's execution: the actor beside the arm since
+issue #32 (passing at 7b047f5). Measured earlier in plan execution (the learner making the plans),
 10000 steps: distance 0.35 -> 0.033 m, success by quarter 0 / 42 / 90 / 92 %, 1996 retreats of 2158
 segments dropping 89,283 planned actions. In the closed loop (6000 steps): 0.41 -> 0.05 m, 0 / 0 / 3 / 73
 %. Through the stack, the closed loop's learning took off anywhere from step ~2000 to ~7000 (in-process
