@@ -1,4 +1,6 @@
-"""The learner process: any registry agent (AdaptiveH, RKHS, TD3, DDPG) on the Zenoh reach env.
+"""The learner process: any registry agent (AdaptiveH, RKHS, TD3, DDPG) on the Zenoh reach env, or, with
+``learner.execution: actor``, an RKHS learner that learns from the actor's stream of executed ticks
+(``TransitionFeed``) and publishes a policy snapshot at each segment end (``deploy.actor_node``).
 
 Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``telemetry/learner`` for every
 finished episode; obeys ``control`` pause/resume (with the operator token when one is set); declares

@@ -45,6 +45,15 @@ class BusProbe:
         self.bus.subscribe(topic, on)  # the probe's one tie to decoding; bad bytes: the Bus counts them
         return got
 
+    def wait_heard_by(self, sender: Bus, topic: Topic[Any], timeout: float = 10.0) -> None:
+        """Wait until what ``sender`` puts on ``topic`` reaches this probe's subscription (Zenoh declares a
+        subscription to a peer a moment after it connects; a put before that is lost)."""
+        publisher = sender.session.declare_publisher(sender.key(topic))
+        try:
+            self.wait(lambda: publisher.matching_status.matching, timeout, f"{topic} to match a subscriber")
+        finally:
+            publisher.undeclare()
+
     def wait(self, pred: Callable[[], Any], timeout: float = 10.0, what: str = "the condition") -> Any:
         """``pred()``'s first truthy value (evaluated under the lock); AssertionError after ``timeout`` s."""
         deadline = time.monotonic() + timeout

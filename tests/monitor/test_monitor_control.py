@@ -33,6 +33,7 @@ def monitor(endpoint):
     peer = Bus(open_session(ZenohConfig(connect=(endpoint,))), name)
     probe = BusProbe(peer)
     controls = probe.collect(m.CONTROL, arrival=False)
+    probe.wait_heard_by(server.bus, m.CONTROL)
     yield server, probe, controls
     peer.close()
     server.stop()
