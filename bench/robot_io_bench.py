@@ -152,7 +152,9 @@ def main() -> None:
         for _ in range(n_rt):
             time.sleep(rng.uniform(0.055, 0.105))  # random phase against the 50 ms period, one tick apart
             t_sent = time.time()
-            sent[learner.send(m.ActionChunk(actions=[0.0, 0.0, 0.0]))[0]] = t_sent
+            sent[learner.send(m.ActionChunk(actions=[0.0, 0.0, 0.0], opened_by=m.ActionChunk.FIRST))[0]] = (
+                t_sent
+            )
         time.sleep(0.5)
         applied = [status[s][1].stamp - sent[s] for s in sent if s in status]
         round_trip = [status[s][0] - sent[s] for s in sent if s in status]
@@ -161,7 +163,11 @@ def main() -> None:
         estop_event, estop_still = [], []
         for i in range(n_estop):
             direction = 1.0 if i % 2 == 0 else -1.0
-            learner.send(m.ActionChunk(actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist()))
+            learner.send(
+                m.ActionChunk(
+                    actions=np.tile([0.0, 0.04 * direction, 0.0], 30).tolist(), opened_by=m.ActionChunk.FIRST
+                )
+            )
             t_wait = time.monotonic() + 3
             while time.monotonic() < t_wait:
                 with lock:

@@ -31,7 +31,7 @@ from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig
-from learner.plans import Executed, Plan
+from learner.plans import Executed, Plan, opening
 from learner.snapshot import PolicySnapshot, SnapshotError
 from robot_io.safety import EventThrottle
 
@@ -131,15 +131,15 @@ class ActorNode(Node):
         episode = self.counts["episodes"]
         plan: Plan | None = None
         played = length = 0
+        opened_by = "first"
         while not self.stopping:
             # A plan is made from the newest tick only: ticks that played while this process was held up
             # (a stall, a loaded machine) are streamed first, never planned from.
             if plan is None and not self.env.backlog():
                 self._take_offered()
-                plan = self.actor.plan(obs)
+                plan = self.actor.plan(obs, self.counts["segments"], opened_by)
                 recent = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2}
                 self._plans = recent | {plan.plan_id: plan}
-                self.env.segment = self.counts["segments"]
                 self.env.send(plan)
             step = self.env.advance()
             length += 1
@@ -150,7 +150,7 @@ class ActorNode(Node):
             if end != "open":
                 self.counts["segments"] += 1
                 self.counts["retreats"] += end == "retreat"
-                self.env.next_plan_reason = end
+                opened_by = opening(end)
                 plan, played, length = None, 0, 0
             if step.terminated or step.truncated:
                 self.counts["episodes"] += 1
@@ -208,7 +208,7 @@ class ActorNode(Node):
         self._pub_transition(msg)
 
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
-        if drop.by_reason == "retreat":
+        if drop.by_opening == "retreat":
             self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped
 

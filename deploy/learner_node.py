@@ -147,16 +147,14 @@ class LearnerNode(Node):
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
         self.retreat_dropped_moving = 0  # plan mode: of the retreat-dropped actions, the non-zero ones
-        # The chunks that opened a segment after a retreat; the status naming one as preemptor comes within
-        # a few chunks, so the newest few are enough (a set of every one grew for as long as the run).
-        self._retreat_chunks: deque[int] = deque(maxlen=64)
         if self.stream:
             self.feed = TransitionFeed(self.bus)
             self._pub_policy = self.bus.publisher(m.POLICY)
             delay = self.cfg.latency_ms / 1000.0
             self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
-        else:
+        elif closed_loop:
             self.env.on_status = self._on_status
+        else:
             self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
         self.declare_alive()
@@ -172,13 +170,14 @@ class LearnerNode(Node):
         return np.asarray(out)
 
     def _on_status(self, msg: m.ChunkStatus) -> None:
-        if msg.preempted_by in self._retreat_chunks and msg.dropped:
+        """Closed loop: robot-io's status says when a retreat's first chunk cut our chunk's tail."""
+        if m.label(msg, "preempted_by_opening") == "retreat" and msg.dropped:  # ours: the env checked
             self.retreat_preemptions += 1
             self.retreat_dropped += msg.dropped
 
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
         """Plan mode: a plan made after a retreat preempted the rest of the previous one."""
-        if drop.by_reason == "retreat":
+        if drop.by_opening == "retreat":
             self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped
             self.retreat_dropped_moving += drop.moving
@@ -225,12 +224,8 @@ class LearnerNode(Node):
                     global_step=rec.global_step,
                 )
             )
-            if self.stream:
-                continue
-            self.env.segment = rec.index + 1
-            self.env.next_plan_reason = rec.reason  # plan mode: the next plan is this segment end's
-            if rec.reason == "retreat" and self.cfg.execution == "closed_loop":
-                self._retreat_chunks.append(self.env.chunk_seq + 1)  # the next chunk opens the new segment
+            if self.cfg.execution == "closed_loop":
+                self.env.open_segment(rec.index + 1, rec.reason)  # plans carry their own (plan mode)
         new_episode = lg.episode_count > self._episodes_seen
         if lg.segment_count > self._segments_seen or new_episode:
             self._segments_seen, self._episodes_seen = lg.segment_count, lg.episode_count

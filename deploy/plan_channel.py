@@ -42,7 +42,6 @@ class SentPlan:
     plan: Plan
     actions: np.ndarray  # as sent (steps capped): what the robot plays
     seq: int
-    reason: str | None  # the closed segment's end reason that made this plan ("retreat", ...), if given
     stamp: float = 0.0  # the chunk's stamp: with the number, what the robot names it by
 
 
@@ -52,7 +51,7 @@ class PlanDrop:
 
     plan_id: int
     by_plan_id: int  # the plan that preempted it
-    by_reason: str | None  # why that plan was made (the node marks retreats)
+    by_opening: str  # why that plan was made, as robot-io's status echoes it ("retreat", ...)
     executed: int
     dropped: int
     moving: int
@@ -77,15 +76,13 @@ class PlanBook:
         self.foreign_ticks = 0  # ticks that played a chunk not in the book (reported as holds)
         self.drops: deque[PlanDrop] = deque(maxlen=256)
 
-    def send(
-        self, put: Callable[[], tuple[int, float]], plan: Plan, actions: np.ndarray, reason: str | None
-    ) -> int:
+    def send(self, put: Callable[[], tuple[int, float]], plan: Plan, actions: np.ndarray) -> int:
         """``put()`` the chunk (it returns the chunk's number and stamp) and record it, under the lock: a
         robot tick or status naming the chunk is never looked up before its entry exists. No Zenoh
         callback is waited on while the lock is held (a put does not wait for subscribers)."""
         with self._lock:
             seq, stamp = put()
-            self._by_seq[seq] = SentPlan(plan, actions, seq, reason, stamp)
+            self._by_seq[seq] = SentPlan(plan, actions, seq, stamp)
             self._order.append(seq)
             self.newest_seq = max(self.newest_seq, seq)
             while len(self._order) > self.keep:
@@ -114,7 +111,7 @@ class PlanBook:
             drop = PlanDrop(
                 plan_id=sent.plan.plan_id,
                 by_plan_id=by.plan.plan_id if by is not None else -1,
-                by_reason=by.reason if by is not None else None,
+                by_opening=m.label(msg, "preempted_by_opening"),
                 executed=msg.executed,
                 dropped=msg.dropped,
                 moving=int(np.sum(lengths > MOVING_M)),

@@ -36,6 +36,7 @@ from bus.learner_session import SESSIONS
 from bus.node import Node
 from bus.signing import ForgedMessage, Fresh, authentic
 from deploy.config import StackConfig
+from robot_io.action_queue import ChunkLabel
 from robot_io.command_gate import TakeoverRefused
 from robot_io.config import RobotConfig
 from robot_io.controller import ArmHeld, ArmState, RobotController, TickResult
@@ -165,7 +166,10 @@ class RobotIONode(Node):
             )
             outcome = "bad_plan"
         else:
-            outcome = self.controller.push_chunk(msg.session, msg.seq, actions, time.monotonic(), msg.stamp)
+            label = ChunkLabel(msg.segment, msg.opened_by)
+            outcome = self.controller.push_chunk(
+                msg.session, msg.seq, actions, time.monotonic(), msg.stamp, label
+            )
         if outcome == "accepted":
             return
         self._wake.set()  # the control thread publishes the safety event (and a bad plan's dropped rest)
@@ -179,6 +183,9 @@ class RobotIONode(Node):
                 session=msg.session,
                 verdict=m.enum(m.ChunkStatus, "verdict", outcome),
                 chunk_stamp=msg.stamp,
+                segment=msg.segment,
+                opened_by=msg.opened_by,
+                preempted_by_opening=m.ActionChunk.NONE,
             )
         )
 
@@ -249,6 +256,7 @@ class RobotIONode(Node):
             log.info("safety %s: %s", record.kind, record.detail)
             self._publish_safety(record.kind, record.detail, record.held)
         for report in result.reports:
+            by = report.preempted_by_label
             self._pub_status(
                 m.ChunkStatus(
                     chunk_seq=report.chunk_seq,
@@ -259,6 +267,9 @@ class RobotIONode(Node):
                     session=report.session,
                     verdict=m.ChunkStatus.ACCEPTED,
                     chunk_stamp=report.chunk_stamp,
+                    segment=report.label.segment,
+                    opened_by=report.label.opening,
+                    preempted_by_opening=by.opening if by is not None else m.ActionChunk.NONE,
                 )
             )
         self._pub_state(robot_state_message(result.state, self.instance))

@@ -7,10 +7,11 @@ control period with exactly ``a`` applied (gymnasium semantics: TD3/DDPG run on 
 Chunks are a receding horizon: the tail after ``a`` is a plan (``planner(obs, a, n)``, by default zero
 displacements = stay put) that the robot keeps playing if the learner is late, and the next step's chunk
 (higher ``seq``) preempts it; the robot reports the dropped count. The learner node marks chunks
-with their segment index, so a retreat shows as the first chunk of a new segment preempting the old
-segment's plan. Observation: ee position/velocity (from ``state``) and target position/velocity (from
-vision's ``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process
-``NSReach-v0`` (the reach task's observation is shared).
+with their segment index and why it began (``open_segment``), so a retreat shows as the first chunk
+of a new segment preempting the old segment's plan, in robot-io's own status of that chunk.
+Observation: ee position/velocity (from ``state``) and target position/velocity (from vision's
+``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process ``NSReach-v0``
+(the reach task's observation is shared).
 
 Plan execution (``learner.execution: plan``): the env is also the learner's ``PlanChannel``
 (``learner.plans``). ``send(plan)`` publishes one chunk with the plan's actions, its predicted
@@ -39,7 +40,7 @@ from bus import messages as m
 from bus.learner_session import REFUSALS, LearnerSession
 from bus.transport import Bus
 from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
-from learner.plans import Executed, Plan
+from learner.plans import Executed, Plan, opening
 from tasks.reach import (
     predict_reach,
     reach_distance,
@@ -157,7 +158,8 @@ class ZenohReachEnv(ReachSpec):
         super().__init__(settings)
         self.bus = bus
         self.planner = planner
-        self.segment = 0
+        self.segment = 0  # closed loop: the segment the next chunk belongs to (``open_segment``)
+        self._opening = "first"  # closed loop: why the next chunk's segment began, until it is sent
         self._cond = threading.Condition()
         self._state: m.RobotState | None = None
         self._state_count = 0
@@ -179,7 +181,6 @@ class ZenohReachEnv(ReachSpec):
         self._last_state: m.RobotState | None = None  # of the last tick ``advance`` returned
         self.suspended_ticks = 0
         self.book = PlanBook()
-        self.next_plan_reason: str | None = None  # set by the node: why the next plan is made
         self.on_plan_dropped: Callable[[PlanDrop], None] | None = None
         delay = settings.latency_ms / 1000.0
         self._sender = DelayedSender(self._publish_plan, delay, self.stop) if delay > 0 else None
@@ -388,8 +389,14 @@ class ZenohReachEnv(ReachSpec):
             self._ticks.clear()
             self._last_state = self._state
         self._steps = 0
+        self._opening = "first"
         obs, _, info = self._observe()
         return obs, info
+
+    def open_segment(self, segment: int, segment_end: str) -> None:
+        """Closed loop: the next chunk opens ``segment``, after the one before ended by ``segment_end``;
+        the chunk says so, and robot-io's status of the chunk it preempts echoes it."""
+        self.segment, self._opening = segment, opening(segment_end)
 
     def _chunk(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         n = self.settings.chunk_len - 1
@@ -424,7 +431,9 @@ class ZenohReachEnv(ReachSpec):
                 raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {self.refused}")
             with self._cond:
                 tick0 = self._state.tick if self._state is not None else -1
-            sent = self.session.send(m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment))
+            opened_by = m.enum(m.ActionChunk, "opened_by", self._opening)
+            msg = m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment, opened_by=opened_by)
+            sent = self.session.send(msg)
             self.chunk_seq = sent[0]
 
             def answered(sent: tuple[int, float] = sent) -> bool:
@@ -462,6 +471,7 @@ class ZenohReachEnv(ReachSpec):
                 pass
             # At most one resend per tick: a "held" verdict comes before the state that shows the hold.
             self._wait(lambda t=tick0: self._state is not None and self._state.tick > t, 2 * self.period)
+        self._opening = "continue"  # played: the segment's later chunks continue it
         self._steps += 1
         self.global_step += 1
         obs, distance, info = self._observe()
@@ -481,21 +491,21 @@ class ZenohReachEnv(ReachSpec):
     # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
     def send(self, plan: Plan) -> None:
         """Publish ``plan`` as one chunk, now or ``latency_ms`` later; never blocks the learner."""
-        item = (plan, self.segment, self.next_plan_reason)
-        self.next_plan_reason = None
         if self._sender is None:
-            self._publish_plan(item)
+            self._publish_plan(plan)
         else:
-            self._sender.submit(item)
+            self._sender.submit(plan)
 
-    def _publish_plan(self, item: object) -> None:
-        plan, segment, reason = item  # type: ignore[misc]
+    def _publish_plan(self, plan: Plan) -> None:
         actions = cap_steps(plan.actions, self.settings.max_step_m)
         predicted = np.asarray(plan.predicted, float)[1 : len(actions) + 1, 0:3]
         msg = m.ActionChunk(
-            actions=actions.ravel().tolist(), segment=segment, predicted_ee=predicted.ravel().tolist()
+            actions=actions.ravel().tolist(),
+            segment=plan.segment,
+            predicted_ee=predicted.ravel().tolist(),
+            opened_by=m.enum(m.ActionChunk, "opened_by", plan.opened_by),
         )
-        self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions, reason)
+        self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions)
 
     def queued(self, n: int) -> np.ndarray:
         """The next ``n`` (or fewer) actions the robot will play if no newer plan arrives, as of the last
@@ -524,7 +534,10 @@ class ZenohReachEnv(ReachSpec):
             self._sender.cancel()
         obs, _, _ = self._observe()
         stay = np.zeros((1, 3))
-        self._publish_plan((Plan(-1, stay, stay, np.stack([obs, obs])), self.segment, "target_lost"))
+        newest = self.book.newest()
+        segment = newest.plan.segment if newest is not None else 0
+        here = np.stack([obs, obs])
+        self._publish_plan(Plan(-1, stay, stay, here, segment=segment, opened_by="target_lost"))
         self._await_target()
         with self._cond:
             self.outage_ticks += len(self._ticks)

@@ -57,8 +57,9 @@ class Actor:
         self.policy.explore(snap.sigma)
         self.version = snap.version
 
-    def plan(self, obs: np.ndarray) -> Plan:
-        """A segment's plan from ``obs``: ``segment_limit`` actions along the model's predicted states."""
+    def plan(self, obs: np.ndarray, segment: int, opened_by: str) -> Plan:
+        """Segment ``segment``'s plan from ``obs``: ``segment_limit`` actions along the model's predicted
+        states (``opened_by``: how the segment before it ended, ``learner.plans.opening``)."""
         noise: list[np.ndarray] = []
 
         def draw(o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +67,7 @@ class Actor:
             noise.append(n)
             return action, raw
 
-        plan = sample_plan(self._next_plan_id, obs, self.segment_limit, self.model, draw)
+        plan = sample_plan(self._next_plan_id, obs, self.segment_limit, self.model, draw, segment, opened_by)
         plan.noise = np.asarray(noise)  # the learner scores each action by it (its mean moves on meanwhile)
         self._next_plan_id += 1
         return plan

@@ -32,7 +32,7 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
-from learner.plans import Plan, PlanChannel, QueuedChannel, rollout, sample_plan
+from learner.plans import Plan, PlanChannel, QueuedChannel, opening, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.replay import Transition, TransitionWindow
@@ -146,6 +146,7 @@ class AdaptiveH:
             self.model, self.channel = self._plan_execution(env)
         self._plan: Plan | None = None  # the open segment's plan
         self._plan_started = False  # one of its actions has played
+        self._opening = "first"  # why the next plan is made (``learner.plans.Plan.opened_by``)
         self._plans: dict[int, Plan] = {}  # recent plans by id: with latency the previous one still plays
         self._next_plan_id = 0
 
@@ -210,6 +211,8 @@ class AdaptiveH:
             self.segment_limit,
             self.model,
             lambda x: self.policy.sample(self.normalize(x), self.rng),
+            segment=self.log.segment_count,
+            opened_by=self._opening,
         )
         self._next_plan_id += 1
         self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {plan.plan_id: plan}
@@ -246,6 +249,7 @@ class AdaptiveH:
             record = self._close_segment("h_max")
         if record is not None:
             self._plan = None  # the segment closed: the next step re-plans and preempts the rest
+            self._opening = opening(record.reason)
         if episode_over:
             self._finish_episode(step.info)
         elif np.all(np.isfinite(step.obs)):
@@ -476,6 +480,7 @@ class AdaptiveH:
     def _reset_episode(self) -> None:
         obs, _ = (self.channel or self.env).reset(seed=self._episode_seed)
         self._plan = None
+        self._opening = "first"
         self._episode_seed += 1
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0

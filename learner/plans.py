@@ -23,16 +23,34 @@ import numpy as np
 Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
+OPENINGS = ("first", "retreat", "h_max", "target_lost")  # why a plan is made (see ``Plan.opened_by``)
+
+
 @dataclass
 class Plan:
     """``actions[i]`` (clipped to the action box) was planned at the predicted observation ``predicted[i]``;
-    ``predicted[i + 1]`` is where the model expects it to lead. ``raw`` keeps the unclipped samples."""
+    ``predicted[i + 1]`` is where the model expects it to lead. ``raw`` keeps the unclipped samples.
+
+    A plan is one segment's actions: ``segment`` numbers it and ``opened_by`` says why it was made (how
+    the plan before it ended: one of ``OPENINGS``), so whoever plays it can report a retreat's plan as
+    one without a second account of segments."""
 
     plan_id: int
     actions: np.ndarray
     raw: np.ndarray
     predicted: np.ndarray  # len(actions) + 1 observations
     noise: np.ndarray | None = None  # raw - the mean that drew it, when the planner keeps it (an actor)
+    segment: int = 0
+    opened_by: str = "first"
+
+    def __post_init__(self) -> None:
+        if self.opened_by not in OPENINGS:
+            raise ValueError(f"Plan.opened_by: {self.opened_by!r} is not one of {OPENINGS}")
+
+
+def opening(segment_end: str) -> str:
+    """Why the next plan is made, from how the segment before it ended (an episode's end: a first plan)."""
+    return "first" if segment_end == "episode_end" else segment_end
 
 
 @dataclass
@@ -79,9 +97,11 @@ def sample_plan(
     n: int,
     model: Model,
     sample: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+    segment: int = 0,
+    opened_by: str = "first",
 ) -> Plan:
     """``n`` actions drawn by ``sample(obs) -> (clipped, raw)`` along the states ``model`` predicts from
-    ``obs``: the segment's plan, made wherever the policy is held (the learner, or an actor)."""
+    ``obs``: segment ``segment``'s plan, made wherever the policy is held (the learner, or an actor)."""
     o = np.asarray(obs, float)
     predicted, actions, raws = [o], [], []
     for _ in range(n):
@@ -90,7 +110,14 @@ def sample_plan(
         actions.append(a)
         raws.append(raw)
         predicted.append(o)
-    return Plan(plan_id, np.asarray(actions), np.asarray(raws), np.asarray(predicted))
+    return Plan(
+        plan_id,
+        np.asarray(actions),
+        np.asarray(raws),
+        np.asarray(predicted),
+        segment=segment,
+        opened_by=opened_by,
+    )
 
 
 class QueuedChannel:

@@ -113,7 +113,6 @@ class MonitorState:
         self._n_state = 0
         # (session, chunk seq) -> plan, the newest PLANS_KEPT in arrival order
         self.plans: dict[tuple[str, int], dict[str, Any]] = {}
-        self._retreat_segments: deque[int] = deque(maxlen=50)  # segments that ended in a retreat
         bus.subscribe(m.STATE, self._state)
         bus.subscribe(m.TARGET, self._target)
         bus.subscribe(m.EVENTS_RETREAT, self._retreat, check=self.limits.problem)
@@ -159,8 +158,6 @@ class MonitorState:
             self.segments.append({"segment": e.segment, "H": e.H, "reason": reason, "step": e.global_step})
             for x in e.statistic:
                 self.statistic.append((e.segment, round(x, 5), reason))
-            if reason == "retreat":
-                self._retreat_segments.append(e.segment)
 
     def _chunk(self, c: m.ActionChunk) -> None:
         with self.lock:
@@ -209,13 +206,13 @@ class MonitorState:
             self.counts["dropped"] += s.dropped
             if self.current_chunk.get("chunk_seq") == s.chunk_seq:
                 self.current_chunk.update(executed=s.executed, dropped=s.dropped)
-            plan, by = self.plans.get((s.session, s.chunk_seq)), self.plans.get((s.session, s.preempted_by))
+            plan = self.plans.get((s.session, s.chunk_seq))
             if plan is not None:
                 plan.update(executed=s.executed, dropped=s.dropped, done=s.done)
                 if s.dropped and s.preempted_by >= 0:
                     plan["parted_tick"] = plan["last_tick"]
-                    # A retreat closes segment k; the plan it makes opens segment k + 1.
-                    plan["by_retreat"] = by is not None and by["segment"] - 1 in self._retreat_segments
+                    # Robot-io's status says why the plan that cut this one was made.
+                    plan["by_retreat"] = m.label(s, "preempted_by_opening") == "retreat"
                     self.counts["dropped_at_retreat"] += s.dropped if plan["by_retreat"] else 0
             if s.done:
                 self.chunks.append(

@@ -13,6 +13,18 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class ChunkLabel:
+    """What the sender says a chunk's plan is (its segment, and why it was made, as the sender's enum
+    number): echoed in every report of the chunk and of the one it preempts, never interpreted here."""
+
+    segment: int = 0
+    opening: int = 0
+
+
+UNLABELLED = ChunkLabel()
+
+
+@dataclass(frozen=True)
 class ChunkReport:
     """The account of one chunk: how many actions ran, how many were dropped, and why it ended."""
 
@@ -23,6 +35,8 @@ class ChunkReport:
     done: bool = False
     session: str = ""  # the learner session whose chunk it is
     chunk_stamp: float = 0.0  # the chunk's send time: with session and number, names the exact chunk
+    label: ChunkLabel = UNLABELLED
+    preempted_by_label: ChunkLabel | None = None  # the preempting chunk's label; None: no chunk did
 
 
 @dataclass(frozen=True)
@@ -41,26 +55,38 @@ class ActionQueue:
         self._actions: deque[np.ndarray] = deque()
         self._seq = -1
         self._stamp = 0.0
+        self._label = UNLABELLED
         self._session = ""
         self._executed = 0
         self._reports: list[ChunkReport] = []
 
     def _report(
-        self, chunk_seq: int, executed: int, dropped: int, preempted_by: int = -1, done: bool = False
+        self,
+        chunk_seq: int,
+        executed: int,
+        dropped: int,
+        preempted_by: int = -1,
+        done: bool = False,
+        by: ChunkLabel | None = None,
     ) -> None:
-        report = ChunkReport(chunk_seq, executed, dropped, preempted_by, done, self._session, self._stamp)
+        report = ChunkReport(
+            chunk_seq, executed, dropped, preempted_by, done, self._session, self._stamp, self._label, by
+        )
         self._reports.append(report)
 
-    def push(self, chunk_seq: int, actions: np.ndarray, stamp: float = 0.0) -> bool:
+    def push(
+        self, chunk_seq: int, actions: np.ndarray, stamp: float = 0.0, label: ChunkLabel = UNLABELLED
+    ) -> bool:
         """Queue a chunk; returns False (and ignores it) when it is not newer than the current one."""
         actions = np.asarray(actions, float).reshape(-1, 3)
         with self._lock:
             if chunk_seq <= self._seq:
                 return False
             if self._actions:
-                self._report(self._seq, self._executed, len(self._actions), preempted_by=chunk_seq, done=True)
+                dropped = len(self._actions)
+                self._report(self._seq, self._executed, dropped, preempted_by=chunk_seq, done=True, by=label)
             self._actions = deque(actions)
-            self._seq, self._stamp = chunk_seq, stamp
+            self._seq, self._stamp, self._label = chunk_seq, stamp, label
             self._executed = 0
             if not self._actions:
                 self._report(chunk_seq, 0, 0, done=True)
@@ -72,6 +98,7 @@ class ActionQueue:
         dropped = self.clear()
         with self._lock:
             self._session, self._seq, self._stamp, self._executed = session, -1, 0.0, 0
+            self._label = UNLABELLED
         return dropped
 
     def take(self) -> Played | None:

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from robot_io.action_queue import ActionQueue, ChunkReport
+from robot_io.action_queue import UNLABELLED, ActionQueue, ChunkLabel, ChunkReport
 from robot_io.backends import RobotBackend, make_backend
 from robot_io.command_gate import CommandGate, TakeoverRefused, Verdict
 from robot_io.config import RobotConfig
@@ -117,7 +117,13 @@ class RobotController:
             self.safety.report(kind, f"{detail}; refused whole, arm holds (dropped {dropped} queued)")
 
     def push_chunk(
-        self, session: str, chunk_seq: int, actions: np.ndarray, now: float, stamp: float = 0.0
+        self,
+        session: str,
+        chunk_seq: int,
+        actions: np.ndarray,
+        now: float,
+        stamp: float = 0.0,
+        label: ChunkLabel = UNLABELLED,
     ) -> Verdict:
         """Queue a chunk of the obeyed session (preempting the rest of the current one). Refused, and
         reported as a ``foreign_command`` safety event, when the gate says it is not that session's next
@@ -137,7 +143,7 @@ class RobotController:
                 return "held"  # runs more than the gap ahead, and a copy of this one is stale
             if self.gate.check(session, chunk_seq) is not None:  # a newer one got in while unlocked
                 return "stale"
-            if not self.queue.push(chunk_seq, actions, stamp):  # the gate admits only newer numbers
+            if not self.queue.push(chunk_seq, actions, stamp, label):  # the gate admits only newer numbers
                 raise AssertionError(f"queue refused chunk {chunk_seq} after {self.queue.chunk_seq}")
             self.gate.admitted(chunk_seq)
             self.safety.command_received(now)

@@ -66,6 +66,10 @@ class BusProbe:
         raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
+# A ChunkStatus must say why its chunk and its preemptor were made (every enum is set on the wire).
+LABELS = {"opened_by": m.ActionChunk.FIRST, "preempted_by_opening": m.ActionChunk.NONE}
+
+
 def send_chunk(bus: Bus, seq: int, actions: Any, session: str, predicted_ee: Any = ()) -> None:
     """Put an ActionChunk of ``session`` with an explicit ``seq`` straight on the wire (what a learner,
     or a stranger copying its session id, sends), bypassing the publisher's own numbering."""
@@ -74,6 +78,7 @@ def send_chunk(bus: Bus, seq: int, actions: Any, session: str, predicted_ee: Any
         actions=np.asarray(actions, float).ravel(),
         session=session,
         predicted_ee=np.asarray(predicted_ee, float).ravel(),
+        opened_by=m.ActionChunk.FIRST,
     )
     bus.session.put(bus.key(m.CMD_CHUNK), msg.SerializeToString())
 

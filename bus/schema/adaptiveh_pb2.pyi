@@ -133,7 +133,23 @@ class AnnotatedImage(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., jpeg: _Optional[bytes] = ..., detected: _Optional[bool] = ...) -> None: ...
 
 class ActionChunk(_message.Message):
-    __slots__ = ("seq", "stamp", "actions", "segment", "predicted_ee", "session", "mac")
+    __slots__ = ("seq", "stamp", "actions", "segment", "predicted_ee", "session", "mac", "opened_by")
+    class Opening(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+        __slots__ = ()
+        OPENING_UNSPECIFIED: _ClassVar[ActionChunk.Opening]
+        NONE: _ClassVar[ActionChunk.Opening]
+        FIRST: _ClassVar[ActionChunk.Opening]
+        RETREAT: _ClassVar[ActionChunk.Opening]
+        H_MAX: _ClassVar[ActionChunk.Opening]
+        TARGET_LOST: _ClassVar[ActionChunk.Opening]
+        CONTINUE: _ClassVar[ActionChunk.Opening]
+    OPENING_UNSPECIFIED: ActionChunk.Opening
+    NONE: ActionChunk.Opening
+    FIRST: ActionChunk.Opening
+    RETREAT: ActionChunk.Opening
+    H_MAX: ActionChunk.Opening
+    TARGET_LOST: ActionChunk.Opening
+    CONTINUE: ActionChunk.Opening
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     ACTIONS_FIELD_NUMBER: _ClassVar[int]
@@ -141,6 +157,7 @@ class ActionChunk(_message.Message):
     PREDICTED_EE_FIELD_NUMBER: _ClassVar[int]
     SESSION_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    OPENED_BY_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     actions: _containers.RepeatedScalarFieldContainer[float]
@@ -148,10 +165,11 @@ class ActionChunk(_message.Message):
     predicted_ee: _containers.RepeatedScalarFieldContainer[float]
     session: str
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ..., predicted_ee: _Optional[_Iterable[float]] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    opened_by: ActionChunk.Opening
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., actions: _Optional[_Iterable[float]] = ..., segment: _Optional[int] = ..., predicted_ee: _Optional[_Iterable[float]] = ..., session: _Optional[str] = ..., mac: _Optional[bytes] = ..., opened_by: _Optional[_Union[ActionChunk.Opening, str]] = ...) -> None: ...
 
 class ChunkStatus(_message.Message):
-    __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done", "session", "verdict", "chunk_stamp", "mac")
+    __slots__ = ("seq", "stamp", "chunk_seq", "executed", "dropped", "preempted_by", "done", "session", "verdict", "chunk_stamp", "mac", "segment", "opened_by", "preempted_by_opening")
     class Verdict(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         VERDICT_UNSPECIFIED: _ClassVar[ChunkStatus.Verdict]
@@ -181,6 +199,9 @@ class ChunkStatus(_message.Message):
     VERDICT_FIELD_NUMBER: _ClassVar[int]
     CHUNK_STAMP_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    SEGMENT_FIELD_NUMBER: _ClassVar[int]
+    OPENED_BY_FIELD_NUMBER: _ClassVar[int]
+    PREEMPTED_BY_OPENING_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     chunk_seq: int
@@ -192,7 +213,10 @@ class ChunkStatus(_message.Message):
     verdict: ChunkStatus.Verdict
     chunk_stamp: float
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ..., session: _Optional[str] = ..., verdict: _Optional[_Union[ChunkStatus.Verdict, str]] = ..., chunk_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    segment: int
+    opened_by: ActionChunk.Opening
+    preempted_by_opening: ActionChunk.Opening
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ..., session: _Optional[str] = ..., verdict: _Optional[_Union[ChunkStatus.Verdict, str]] = ..., chunk_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ..., segment: _Optional[int] = ..., opened_by: _Optional[_Union[ActionChunk.Opening, str]] = ..., preempted_by_opening: _Optional[_Union[ActionChunk.Opening, str]] = ...) -> None: ...
 
 class RetreatEvent(_message.Message):
     __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step", "mac")

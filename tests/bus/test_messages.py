@@ -28,8 +28,19 @@ SAMPLES = [
     ),
     m.CameraFrame(width=2, height=1, rgb=bytes(6), depth=bytes(4), intrinsics=[600, 600, 1, 0.5]),
     m.AnnotatedImage(jpeg=b"\xff\xd8", detected=True),
-    m.ActionChunk(seq=9, actions=np.full(6, 0.01), segment=2),
-    m.ChunkStatus(chunk_seq=9, executed=4, dropped=6, preempted_by=10, done=True, session="ab", verdict=1),
+    m.ActionChunk(seq=9, actions=np.full(6, 0.01), segment=2, opened_by=m.ActionChunk.RETREAT),
+    m.ChunkStatus(
+        chunk_seq=9,
+        executed=4,
+        dropped=6,
+        preempted_by=10,
+        done=True,
+        session="ab",
+        verdict=1,
+        segment=2,
+        opened_by=m.ActionChunk.FIRST,
+        preempted_by_opening=m.ActionChunk.RETREAT,
+    ),
     m.RetreatEvent(
         segment=1, H=12, reason=m.RetreatEvent.RETREAT, statistic=[0.5, -0.1], threshold=0.01, global_step=99
     ),
@@ -92,7 +103,9 @@ def test_every_topic_binds_one_schema_type():
 
 
 def test_chunk_array_shape():
-    chunk = m.CMD_CHUNK.decode(m.ActionChunk(actions=[0.0] * 9).SerializeToString())
+    chunk = m.CMD_CHUNK.decode(
+        m.ActionChunk(actions=[0.0] * 9, opened_by=m.ActionChunk.FIRST).SerializeToString()
+    )
     assert m.action_array(chunk).shape == (3, 3)
     with pytest.raises(m.MessageError, match="multiple of 3"):
         m.action_array(m.ActionChunk(actions=[0.0] * 4))

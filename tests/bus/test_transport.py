@@ -5,6 +5,7 @@ import threading
 import time
 
 import pytest
+from bus_probe import LABELS
 from loopback import unique_name
 
 from bus import messages as m
@@ -38,7 +39,8 @@ def test_publisher_stamps_and_subscriber_decodes(buses):
     time.sleep(0.3)  # let the subscription reach the publisher's session
     before = time.time()
     seqs = [
-        pub.put(m.ChunkStatus(chunk_seq=i, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED)) for i in range(3)
+        pub.put(m.ChunkStatus(chunk_seq=i, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED, **LABELS))
+        for i in range(3)
     ]
     a.session.put(a.key(m.CHUNK_STATUS), b"\xff\xff not protobuf")
     assert _wait(lambda: len(got) == 3 and bad)
@@ -123,7 +125,7 @@ def test_a_renewed_session_keeps_every_declaration(endpoint):
         part.queryable(m.RESET, lambda req: m.ResetReply(ok=True, detail=f"seed {req.seed}"))
         part.declare_alive("learner")
         pub, control = part.publisher(m.CHUNK_STATUS), hub.publisher(m.CONTROL)
-        status = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED)
+        status = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED, **LABELS)
         assert _wait(lambda: ("learner", True) in alive)
         time.sleep(0.3)
         pub.put(status)
@@ -174,7 +176,8 @@ def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
             "from bus.transport import Bus, ZenohConfig\nlogging.basicConfig()\n"
             f"b = Bus.open(ZenohConfig(hub={endpoint!r}), {name!r}); p = b.publisher(m.CHUNK_STATUS)\n"
             "print('up', flush=True)\n"
-            "s = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED)\n"
+            "s = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED,"
+            " opened_by=m.ActionChunk.FIRST, preempted_by_opening=m.ActionChunk.NONE)\n"
             "while True:\n    p.put(s); time.sleep(0.02)",
         ],
         stdout=subprocess.PIPE,

@@ -52,7 +52,9 @@ def driven(robot_hub):
 
 
 def _moving(probe: BusProbe, session: LearnerSession) -> None:
-    session.send(m.ActionChunk(actions=np.tile([0.0, -0.03, 0.0], (40, 1)).ravel()))
+    session.send(
+        m.ActionChunk(actions=np.tile([0.0, -0.03, 0.0], (40, 1)).ravel(), opened_by=m.ActionChunk.FIRST)
+    )
     probe.wait(lambda: max(abs(v) for v in probe.states[-1].dq) > 0.2, 5, "the arm moving")
 
 

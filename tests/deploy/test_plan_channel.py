@@ -13,13 +13,13 @@ from deploy.plan_channel import DelayedSender, PlanBook, cap_steps, played
 from learner.plans import Plan
 
 
-def plan(plan_id: int, actions) -> Plan:
+def plan(plan_id: int, actions, opened_by: str = "first") -> Plan:
     a = np.asarray(actions, float)
-    return Plan(plan_id, a, a, np.zeros((len(a) + 1, 15)))
+    return Plan(plan_id, a, a, np.zeros((len(a) + 1, 15)), segment=plan_id, opened_by=opened_by)
 
 
-def send(book: PlanBook, seq: int, p: Plan, reason: str | None = None) -> int:
-    return book.send(lambda: (seq, 100.0 + seq), p, p.actions, reason)  # stamp: a function of seq here
+def send(book: PlanBook, seq: int, p: Plan) -> int:
+    return book.send(lambda: (seq, 100.0 + seq), p, p.actions)  # stamp: a function of seq here
 
 
 def test_delayed_sender_keeps_order_and_forgets_on_cancel():
@@ -45,16 +45,19 @@ def test_delayed_sender_keeps_order_and_forgets_on_cancel():
 def test_plan_book_counts_planned_motion_dropped_by_a_newer_plan():
     book = PlanBook()
     first = send(book, 10, plan(0, [[0.0, 0.01, 0.0]] * 4 + [[0.0, 0.0, 0.0]]))
-    second = send(book, 11, plan(1, [[0.01, 0.0, 0.0]]), "retreat")
+    second = send(book, 11, plan(1, [[0.01, 0.0, 0.0]], "retreat"))
     assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=0)) is None  # progress
     assert book.on_status(m.ChunkStatus(chunk_seq=99, executed=1, dropped=3, preempted_by=second)) is None
     assert book.on_status(m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=-1)) is None
     forged = m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second, chunk_stamp=1.0)
     assert book.on_status(forged) is None  # our number, another chunk (not our stamp)
     drop = book.on_status(
-        m.ChunkStatus(chunk_seq=first, executed=1, dropped=4, preempted_by=second, chunk_stamp=100.0 + first)
-    )
-    assert (drop.plan_id, drop.by_plan_id, drop.by_reason) == (0, 1, "retreat")
+        m.ChunkStatus(
+            chunk_seq=first, executed=1, dropped=4, preempted_by=second, chunk_stamp=100.0 + first,
+            preempted_by_opening=m.ActionChunk.RETREAT,
+        )
+    )  # fmt: skip
+    assert (drop.plan_id, drop.by_plan_id, drop.by_opening) == (0, 1, "retreat")  # robot-io's echo
     assert (drop.dropped, drop.moving) == (4, 3) and abs(drop.path_m - 0.03) < 1e-12
     assert (book.dropped_planned, book.dropped_moving, book.preemptions) == (4, 3, 1)
 

@@ -113,6 +113,35 @@ def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot_h
         env.bus.close()
 
 
+def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
+    """Closed loop: the chunk that opens a segment after a retreat says so, and robot-io's status of the
+    chunk it cut echoes it (the learner counts retreat drops from that, not from a list of its own)."""
+    stack, probe = robot_hub
+    chunks = probe.collect(m.CMD_CHUNK, arrival=False)
+    env = open_env(stack, probe.token, execution="closed_loop", chunk_len=5)
+    try:
+        env.reset(seed=3)
+        me = env.session.id
+        env.step(np.array([0.0, 0.01, 0.0]))
+        env.open_segment(4, "retreat")
+        env.step(np.array([0.0, -0.01, 0.0]))
+        env.step(np.zeros(3))
+
+        def cut() -> list[m.ChunkStatus]:
+            return [s for s in probe.status if s.session == me and s.preempted_by >= 0 and s.dropped]
+
+        probe.wait(lambda: len(cut()) >= 2, 5, "the status of the cut chunks")
+        with probe.lock:
+            mine = [(c.seq, c.segment, m.label(c, "opened_by")) for c in chunks if c.session == me]
+            first, second = cut()[:2]
+    finally:
+        env.bus.close()
+    assert [c[1:] for c in mine] == [(0, "first"), (4, "retreat"), (4, "continue")]
+    assert (first.chunk_seq, first.segment, m.label(first, "opened_by")) == (mine[0][0], 0, "first")
+    assert (first.preempted_by, m.label(first, "preempted_by_opening")) == (mine[1][0], "retreat")
+    assert (second.segment, m.label(second, "preempted_by_opening")) == (4, "continue")
+
+
 def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub, tmp_path):
     """The real learner (AdaptiveH, ``learner.execution: plan``): every retreat's plan preempts non-zero
     planned motion on the robot, and the robot's very next tick plays the new plan's first action.
@@ -144,17 +173,16 @@ def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub
     me = res["session"]  # chunk numbers restart with each session (the earlier tests' envs had theirs)
     with probe.lock:
         by_tick = {s.tick: s for s in ticks if s.session == me}
-        plan_of_segment = {c.segment: c for c in chunks if c.session == me}
         seqs = {c.seq: c for c in chunks if c.session == me}
-        # A retreat's plan opens the next segment (none after the run's last step).
-        opened = [plan_of_segment.get(e.segment + 1) for e in retreats if m.label(e, "reason") == "retreat"]
-        opened = [c for c in opened if c is not None]
+        # A retreat's plan says so, and opens the segment after the one the retreat closed.
+        opened = [c for c in seqs.values() if m.label(c, "opened_by") == "retreat"]
+        retreated = {e.segment for e in retreats if m.label(e, "reason") == "retreat"}
         preempted = {
             s.preempted_by: s
             for s in probe.status
             if s.session == me and s.preempted_by in seqs and s.dropped
         }
-    assert opened
+    assert opened and {c.segment - 1 for c in opened} <= retreated
     checked = 0
     for new in opened:
         assert len(new.predicted_ee) == len(new.actions)  # the plan's path travels with it
@@ -167,6 +195,8 @@ def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub
         if dropped is None:
             continue  # the old plan had run out before this one landed: nothing to preempt
         old = seqs[dropped.chunk_seq]
+        # Robot-io's own status of the cut plan names its segment and the retreat that cut it.
+        assert (dropped.segment, m.label(dropped, "preempted_by_opening")) == (old.segment, "retreat")
         rest = np.reshape(old.actions, (-1, 3))[dropped.executed :]
         assert len(rest) == dropped.dropped and np.linalg.norm(rest, axis=1).min() > 0
         before = by_tick[first - 1]  # the tick before played the old plan: no hold in between

@@ -103,6 +103,7 @@ class Chunks:
             actions=np.asarray(actions, float).ravel(),
             predicted_ee=np.asarray(predicted_ee).ravel(),
             session=Robot.session.id if session is None else session,
+            opened_by=m.ActionChunk.FIRST,
         )
         cls.put(bus, msg.SerializeToString())
         return seq
@@ -252,7 +253,10 @@ def test_08_a_bad_plan_is_refused_whole_and_the_arm_holds(robot):
             lambda seq: Chunks.put(
                 bus,
                 m.ActionChunk(
-                    seq=seq, actions=[0.0, np.nan, 0.0], session=Robot.session.id
+                    seq=seq,
+                    actions=[0.0, np.nan, 0.0],
+                    session=Robot.session.id,
+                    opened_by=m.ActionChunk.FIRST,
                 ).SerializeToString(),
             ),
         ),

@@ -47,8 +47,9 @@ def test_an_actor_with_the_learners_snapshot_plans_and_judges_as_the_learner(tra
             agent.retreat.field, agent.retreat.plan_kernel, agent.normalize(obs), agent.normalize(reached)
         )
         assert ours == pytest.approx(theirs)
-    plan = actor.plan(obs)
+    plan = actor.plan(obs, segment=3, opened_by="retreat")
     assert plan.actions.shape == (CONFIG.h_max, 1) and len(plan.predicted) == CONFIG.h_max + 1
+    assert (plan.segment, plan.opened_by) == (3, "retreat")  # the plan says which segment and why
     np.testing.assert_allclose(plan.predicted[-1], rollout(actor.model, obs, plan.actions))
     np.testing.assert_allclose(plan.actions, np.clip(plan.raw, -1, 1))
 

@@ -62,19 +62,45 @@ def test_recorded_scene_shows_the_plan_and_the_cut_rest(tmp_path: Path, endpoint
             m.Target(position=[0.5, 0.1, 0.3], velocity=[0] * 3, covariance=[0] * 9, valid=True, status=1),
         ),
         (m.STATE, state(1, [0.4, 0.0, 0.3])),
-        (m.CMD_CHUNK, m.ActionChunk(seq=7, actions=[0.01, 0, 0] * 4, predicted_ee=predicted, session=ME)),
+        (
+            m.CMD_CHUNK,
+            m.ActionChunk(
+                seq=7,
+                actions=[0.01, 0, 0] * 4,
+                predicted_ee=predicted,
+                session=ME,
+                opened_by=m.ActionChunk.FIRST,
+            ),
+        ),
         # A stranger's plan: robot-io refuses it, so it is not drawn.
-        (m.CMD_CHUNK, m.ActionChunk(seq=9, actions=[0.01, 0, 0], predicted_ee=[1, 1, 1], session="f" * 16)),
+        (
+            m.CMD_CHUNK,
+            m.ActionChunk(
+                seq=9,
+                actions=[0.01, 0, 0],
+                predicted_ee=[1, 1, 1],
+                session="f" * 16,
+                opened_by=m.ActionChunk.FIRST,
+            ),
+        ),
         (m.STATE, state(2, [0.41, 0.0, 0.3])),
         (
             m.CHUNK_STATUS,
             m.ChunkStatus(
-                chunk_seq=7, executed=1, dropped=3, preempted_by=8, done=True, session=ME, verdict=1
+                chunk_seq=7,
+                executed=1,
+                dropped=3,
+                preempted_by=8,
+                done=True,
+                session=ME,
+                verdict=1,
+                opened_by=m.ActionChunk.FIRST,
+                preempted_by_opening=m.ActionChunk.RETREAT,
             ),
         ),
         (
             m.CMD_CHUNK,
-            m.ActionChunk(seq=8, actions=[0.0, 0, 0] * 2, session=ME),
+            m.ActionChunk(seq=8, actions=[0.0, 0, 0] * 2, session=ME, opened_by=m.ActionChunk.RETREAT),
         ),  # no prediction: no plan path
         (m.STATE, state(3, [0.41, 0.0, 0.3])),
         (m.STATE, state(4, [0.41, 0.0, 0.3])),

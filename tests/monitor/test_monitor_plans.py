@@ -32,15 +32,33 @@ def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):
         probe.wait(lambda: mon.robot.get("ee") == [0.5, 0.0, 0.3], 5, "the first state")
         path = [v for i in range(1, 6) for v in (0.5, 0.01 * i, 0.3)]
         first = put[m.CMD_CHUNK](
-            m.ActionChunk(actions=[0.0, 0.01, 0.0] * 5, segment=3, predicted_ee=path, session=me)
+            m.ActionChunk(
+                actions=[0.0, 0.01, 0.0] * 5,
+                segment=3,
+                predicted_ee=path,
+                session=me,
+                opened_by=m.ActionChunk.FIRST,
+            )
         )
         probe.wait(lambda: (me, first) in mon.plans, 5, "the plan")
         # A stranger's chunk is not a plan of the arm's; its refusal is counted, not drawn.
-        forged = m.ActionChunk(seq=first + 1, actions=[0.05, 0, 0], predicted_ee=[1, 1, 1], session=stranger)
+        forged = m.ActionChunk(
+            seq=first + 1,
+            actions=[0.05, 0, 0],
+            predicted_ee=[1, 1, 1],
+            session=stranger,
+            opened_by=m.ActionChunk.FIRST,
+        )
         bus.session.put(bus.key(m.CMD_CHUNK), forged.SerializeToString())
         put[m.CHUNK_STATUS](
             m.ChunkStatus(
-                chunk_seq=first + 1, dropped=1, done=True, session=stranger, verdict=m.ChunkStatus.FOREIGN
+                chunk_seq=first + 1,
+                dropped=1,
+                done=True,
+                session=stranger,
+                verdict=m.ChunkStatus.FOREIGN,
+                opened_by=m.ActionChunk.FIRST,
+                preempted_by_opening=m.ActionChunk.NONE,
             )
         )
         probe.wait(lambda: mon.counts["refused"] == 1, 5, "the refusal")
@@ -50,13 +68,20 @@ def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):
         put[m.EVENTS_RETREAT](m.RetreatEvent(segment=3, H=2, reason=m.RetreatEvent.RETREAT))
         probe.wait(lambda: mon.counts["retreats"] == 1, 5, "the retreat")
         second = put[m.CMD_CHUNK](
-            m.ActionChunk(actions=[0.0, 0.0, -0.01] * 4, segment=4, predicted_ee=[0.0] * 12, session=me)
+            m.ActionChunk(
+                actions=[0.0, 0.0, -0.01] * 4,
+                segment=4,
+                predicted_ee=[0.0] * 12,
+                session=me,
+                opened_by=m.ActionChunk.RETREAT,
+            )
         )
         probe.wait(lambda: (me, second) in mon.plans, 5, "the retreat's plan")
         put[m.CHUNK_STATUS](
             m.ChunkStatus(
                 chunk_seq=first, executed=2, dropped=3, preempted_by=second, done=True, session=me,
-                verdict=m.ChunkStatus.ACCEPTED,
+                verdict=m.ChunkStatus.ACCEPTED, segment=3, opened_by=m.ActionChunk.FIRST,
+                preempted_by_opening=m.ActionChunk.RETREAT,
             )
         )  # fmt: skip
         state(103, 0.02, second, 0)

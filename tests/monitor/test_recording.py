@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from bus_probe import LABELS
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.descriptor import FieldDescriptor
 from loopback import unique_name
@@ -226,7 +227,8 @@ def test_bytes_that_do_not_decode_are_kept_apart(tmp_path: Path, endpoint: str) 
     session = open_session(ZenohConfig(listen=(endpoint,)))
     path = tmp_path / "r.mcap"
     recorder = Recorder(session, "rj", path)
-    good = m.ChunkStatus(chunk_seq=3, executed=1, dropped=0, preempted_by=-1, verdict=1).SerializeToString()
+    good = m.ChunkStatus(chunk_seq=3, executed=1, dropped=0, preempted_by=-1, verdict=1, **LABELS)
+    good = good.SerializeToString()
     try:
         session.put("adaptiveh/rj/cmd/status", good)
         session.put("adaptiveh/rj/cmd/status", b"\xff\x00garbage")
@@ -260,7 +262,7 @@ def test_a_killed_recorder_leaves_everything_to_its_last_flush(tmp_path: Path, e
     recorder = Recorder(session, "kf", path, flush_s=0.2)
     try:
         for seq in range(1, 31):
-            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1)
+            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1, **LABELS)
             session.put("adaptiveh/kf/cmd/status", status.SerializeToString())
         time.sleep(0.8)  # a flush or more
         killed = tmp_path / "killed.mcap"
@@ -302,7 +304,7 @@ def test_a_long_recording_is_split_and_reads_back_whole(tmp_path: Path, endpoint
     recorder = Recorder(session, "sp", path, flush_s=0.1, split_s=0.4)
     try:
         for seq in range(1, 61):
-            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1)
+            status = m.ChunkStatus(seq=seq, chunk_seq=seq, executed=1, preempted_by=-1, verdict=1, **LABELS)
             session.put("adaptiveh/sp/cmd/status", status.SerializeToString())
             time.sleep(0.025)
     finally:
@@ -348,8 +350,12 @@ GENUINE: dict[m.Topic[Any], Callable[[np.random.Generator], m.Message]] = {
     ),
     m.TARGET: lambda r: _target(r, valid=True, status=m.Target.TRACKING),
     m.TARGET_TRUTH: lambda r: _target(r, valid=False, status=m.Target.NONE),
-    m.CMD_CHUNK: lambda r: m.ActionChunk(actions=_v(r, 6), predicted_ee=_v(r, 6), session=ME),
-    m.CHUNK_STATUS: lambda r: m.ChunkStatus(chunk_seq=3, executed=2, preempted_by=-1, session=ME, verdict=1),
+    m.CMD_CHUNK: lambda r: m.ActionChunk(
+        actions=_v(r, 6), predicted_ee=_v(r, 6), session=ME, opened_by=m.ActionChunk.FIRST
+    ),
+    m.CHUNK_STATUS: lambda r: m.ChunkStatus(
+        chunk_seq=3, executed=2, preempted_by=-1, session=ME, verdict=1, **LABELS
+    ),
     m.EVENTS_RETREAT: lambda r: m.RetreatEvent(segment=4, H=9, reason=1, statistic=_v(r, 9), threshold=0.3),
     m.EVENTS_SAFETY: lambda r: m.SafetyEvent(kind=1, detail="workspace", held=True),
     m.TELEMETRY_LEARNER: lambda r: m.LearnerTelemetry(global_step=12, episode=1, algo="adaptiveh"),

@@ -1,6 +1,6 @@
 import numpy as np
 
-from robot_io.action_queue import ActionQueue, ChunkReport
+from robot_io.action_queue import ActionQueue, ChunkLabel, ChunkReport
 
 
 def chunk(n: int, value: float = 0.01) -> np.ndarray:
@@ -19,14 +19,18 @@ def test_plays_in_order_and_reports_progress():
 
 def test_newer_chunk_preempts_and_reports_dropped():
     q = ActionQueue()
-    q.push(1, chunk(10))
+    old, new = ChunkLabel(segment=3, opening=2), ChunkLabel(segment=4, opening=3)
+    q.push(1, chunk(10), label=old)
     for _ in range(4):
         q.pop()
     q.reports()
-    assert q.push(2, chunk(5, 0.02))
-    assert q.reports() == [ChunkReport(1, 4, 6, preempted_by=2, done=True)]
+    assert q.push(2, chunk(5, 0.02), label=new)
+    # The report echoes both chunks' labels: which segment was cut, and why the one that cut it was made.
+    assert q.reports() == [ChunkReport(1, 4, 6, preempted_by=2, done=True, label=old, preempted_by_label=new)]
     assert len(q) == 5 and q.chunk_seq == 2
     np.testing.assert_allclose(q.pop(), [0.02] * 3)
+    q.clear()
+    assert q.reports()[-1].preempted_by_label is None  # cleared (an e-stop): no chunk preempted it
 
 
 def test_stale_chunk_is_ignored():
