@@ -31,7 +31,7 @@ import yaml
 from mcap.reader import make_reader
 
 from bus.transport import ZenohConfig, open_session
-from deploy.config import load_stack_config
+from deploy.config import compose_stack_yaml, load_stack_config
 from monitor.foxglove.derive import SceneSetup, is_derived
 from monitor.foxglove.live import FoxgloveLive
 
@@ -65,7 +65,7 @@ VIEWER = textwrap.dedent(
 
 def record(seconds: float, tmp: Path) -> tuple[Path, Path]:
     """A stack run of ``seconds`` of learning; returns (its config, its recording)."""
-    cfg = yaml.safe_load(open(ROOT / "configs/sim.yaml"))
+    cfg = compose_stack_yaml(ROOT / "configs/sim.yaml")
     cfg["name"] = unique_name("fxb")
     cfg["zenoh"]["hub"] = free_endpoint()
     cfg["monitor"].update(port=0, foxglove_port=0)
@@ -142,7 +142,7 @@ def replay_cpu(config: Path, mcap: Path, speed: float, mode: str) -> dict[str, A
     if mode == "viewer":
         viewer = subprocess.Popen([sys.executable, "-c", VIEWER, live.url], stdout=subprocess.PIPE, text=True)
         time.sleep(1.0)
-    cfg = yaml.safe_load(config.read_text())
+    cfg = compose_stack_yaml(config)
     cfg["zenoh"]["hub"] = hub  # this process listens there; the replay joins
     rcfg = config.with_name(f"replay-{mode}.yaml")
     rcfg.write_text(yaml.safe_dump(cfg))

@@ -39,6 +39,7 @@ from mcap.reader import make_reader
 
 from bus import messages as m
 from bus.transport import Bus, ZenohConfig, open_session, wait_listening
+from deploy.config import compose_stack_yaml
 from deploy.stack import PART_COMMANDS, running_parts
 from monitor.recording import REJECTED, parts
 
@@ -61,7 +62,7 @@ def free_endpoint() -> str:
 def private_config(run_dir: Path, steps: int, options: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
     """``configs/sim.yaml`` made private to this run, so it never meets another stack on this machine;
     ``options``: extra Zenoh config keys for every part (experiments; the soak is of the stock config)."""
-    cfg = yaml.safe_load((ROOT / "configs/sim.yaml").read_text())
+    cfg = compose_stack_yaml(ROOT / "configs/sim.yaml")
     cfg["name"] = f"soak{uuid.uuid4().hex[:12]}"
     cfg["zenoh"]["hub"] = free_endpoint()
     if options:

@@ -43,6 +43,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from loopback import free_endpoint, unique_name  # noqa: E402
 
+from deploy.config import compose_stack_yaml  # noqa: E402
+
 
 class Listener:
     """Robot states and learner chunks as this process receives them."""
@@ -297,7 +299,7 @@ def main() -> int:
     ap.add_argument("--fixed-h", type=int, default=None, help="override learner.agent.fixed_h (algo rkhs)")
     args = ap.parse_args()
     os.chdir(ROOT)
-    cfg = yaml.safe_load(open(args.config))
+    cfg = compose_stack_yaml(args.config)
     if args.seed is not None:
         cfg["learner"]["seed"] = args.seed
     if args.algo is not None:

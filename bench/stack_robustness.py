@@ -48,7 +48,7 @@ from stack_bench import curve, latency, quarters, run_in_process  # noqa: E402
 from bus import messages as m  # noqa: E402
 from bus.signing import mac_key  # noqa: E402
 from bus.transport import Bus, open_session  # noqa: E402
-from deploy.config import load_stack_config  # noqa: E402
+from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.stack import running_parts  # noqa: E402
 
 OUT = ROOT / "results" / "stack_robustness"
@@ -281,7 +281,7 @@ def main() -> int:
     ap.add_argument("--no-reference", action="store_true", help="skip the in-process runs")
     args = ap.parse_args()
     os.chdir(ROOT)
-    base = yaml.safe_load(open(ROOT / "configs/sim.yaml"))
+    base = compose_stack_yaml(ROOT / "configs/sim.yaml")
     OUT.mkdir(parents=True, exist_ok=True)
     todo = [(c, s) for s in args.seeds for c in args.conditions]
     if not args.no_reference:

@@ -77,6 +77,43 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def overlay(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``over`` laid on ``base``: mappings merge key by key (recursively); anything else replaces."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = overlay(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def compose_yaml(
+    path: str | Path,
+    expand: typing.Callable[[dict[str, Any], Path], dict[str, Any]] | None = None,
+    _chain: tuple[Path, ...] = (),
+) -> dict[str, Any]:
+    """The YAML at ``path`` laid over the file its ``base:`` key names, if any (recursively; ``base`` is
+    relative to the folder of the file that names it). ``expand(data, path)`` resolves a file's own
+    references before it is laid over its base."""
+    data = load_yaml(path)
+    if expand is not None:
+        data = expand(data, Path(path))
+    ref = data.pop("base", None)
+    if ref is None:
+        return data
+    if not isinstance(ref, str):
+        raise ConfigError(f"{path}: base: expected a config file name, got {ref!r}")
+    here = Path(path).resolve()
+    base = here.parent / ref
+    if base.resolve() in (*_chain, here):
+        raise ConfigError(f"{path}: base: {ref} includes itself")
+    try:
+        return overlay(compose_yaml(base, expand, (*_chain, here)), data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: base: {exc}") from None
+
+
 def _model_in(annotation: Any) -> type[BaseModel] | None:
     """The section type inside an annotation (``Pose | None``, ``Annotated[Pose, ...]``), if any."""
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):

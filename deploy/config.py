@@ -16,7 +16,7 @@ from typing import Any, Literal
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from bus.transport import ZenohConfig
-from common.config import Box3, ConfigError, Section, describe, load_yaml, parse
+from common.config import Box3, ConfigError, Section, compose_yaml, describe, load_yaml, overlay, parse
 from learner.config import AGENT_CONFIGS
 from learner.registry import Algo
 from monitor.server import MonitorConfig
@@ -24,7 +24,15 @@ from monitor.view_limits import ViewLimits
 from robot_io.config import RobotConfig
 from vision.config import VisionConfig
 
-__all__ = ["ConfigError", "LearnerConfig", "RecordingConfig", "StackConfig", "load_stack_config", "load_yaml"]
+__all__ = [
+    "ConfigError",
+    "LearnerConfig",
+    "RecordingConfig",
+    "StackConfig",
+    "compose_stack_yaml",
+    "load_stack_config",
+    "load_yaml",
+]
 
 
 ACTOR_ALGOS = ("adaptiveh", "rkhs")  # the RKHS learners: their policy travels as a snapshot
@@ -185,10 +193,36 @@ def _merge(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def compose_stack_yaml(path: str | Path) -> dict[str, Any]:
+    """The stack config at ``path`` as one mapping, its overlays resolved: ``base: FILE`` (this file's
+    sections laid over FILE's, key by key) and ``learner.agent_from: FILE`` (a task config, e.g.
+    ``configs/reach.yaml``, whose ``agent:`` this file's ``learner.agent`` overrides key by key), so the
+    stack learns with the task's tuned agent instead of a copy that drifts. Both paths are relative to
+    the folder of the file that names them; a copy written elsewhere is written from this mapping.
+    ``adaptiveh config show FILE`` prints it."""
+    return compose_yaml(path, _agent_from)
+
+
+def _agent_from(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    learner = data.get("learner")
+    ref = learner.pop("agent_from", None) if isinstance(learner, dict) else None
+    if ref is None:
+        return data
+    try:
+        task = load_yaml(path.parent / ref)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: learner.agent_from: {exc}") from None
+    if not isinstance(task.get("agent"), dict):
+        raise ConfigError(f"{path}: learner.agent_from: {ref} has no agent: section")
+    learner["agent"] = overlay(task["agent"], learner.get("agent") or {})
+    return data
+
+
 def load_stack_config(path: str | Path, **overrides: Any) -> StackConfig:
-    """Read and check ``path``; ``overrides`` (e.g. ``learner={"steps": 60}``) are checked as if in the file.
+    """Read and check ``path`` (overlays resolved: ``compose_stack_yaml``); ``overrides`` (e.g.
+    ``learner={"steps": 60}``) are checked as if in the file.
 
     A ConfigError names the file and every bad key path (``robot.watchdog_timeout_s``), with the
     allowed values or keys.
     """
-    return parse(StackConfig, _merge(load_yaml(path), overrides), str(path))
+    return parse(StackConfig, _merge(compose_stack_yaml(path), overrides), str(path))

@@ -17,6 +17,7 @@ import yaml
 from loopback import free_endpoint, unique_name
 
 from deploy.commands import TOKEN_ENV
+from deploy.config import compose_stack_yaml
 from deploy.stack import PART_COMMANDS, running_parts
 
 PARTS = tuple(PART_COMMANDS.values())  # what ``adaptiveh up`` runs on configs/sim.yaml
@@ -28,7 +29,7 @@ def write_stack_config(
 ) -> tuple[Path, dict]:
     """``configs/sim.yaml`` made private to one test: its own robot name and Zenoh hub port, the monitor on
     a free port, recording and checkpoints under ``directory``; ``learner`` overrides that section."""
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name(prefix)
     cfg["zenoh"]["hub"] = free_endpoint()
     if vision_rate_hz is not None:

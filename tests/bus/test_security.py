@@ -28,11 +28,13 @@ from bus.security import IDENTITY_ENV
 from bus.transport import Bus, ZenohConfig, open_session
 from common.config import ConfigError
 from deploy.commands import TOKEN_ENV
+from deploy.config import compose_stack_yaml
 from deploy.stack import check
 from monitor.server import MonitorConfig, MonitorServer
 
 ROOT = Path(__file__).parents[2]
 SHIPPED = ROOT / "configs" / "multi_machine_tls.yaml"
+SIM = ROOT / "configs" / "sim.yaml"
 TOKEN = "operator-secret-1234"
 
 
@@ -46,7 +48,11 @@ def _make_certs(out: Path, *ids: str) -> Path:
 
 def _shipped(certs: Path, endpoint: str) -> dict:
     """The shipped config with its certificates under ``certs`` and its router on ``endpoint``."""
-    cfg = yaml.safe_load(SHIPPED.read_text().replace("certs/test", str(certs)))
+    copy = certs.parent / "multi_machine_tls.yaml"  # its base, sim.yaml, by absolute path from here
+    copy.write_text(
+        SHIPPED.read_text().replace("certs/test", str(certs)).replace("base: sim.yaml", f"base: {SIM}")
+    )
+    cfg = compose_stack_yaml(copy)
     cfg["zenoh"]["connect"] = [endpoint]
     cfg["zenoh"]["router"]["listen"] = [endpoint]
     return cfg
@@ -259,7 +265,7 @@ def test_config_errors_name_the_key(bus, tmp_path):
 
 def test_check_finds_each_parts_certificate_and_password(tmp_path):
     """``adaptiveh up --check`` on a secured config: a part whose files are missing is named."""
-    certs = _make_certs(tmp_path / "c", "learner", "robot-io", "monitor", "supervisor")  # no vision
+    certs = _make_certs(tmp_path / "c", "learner", "actor", "robot-io", "monitor", "supervisor")  # no vision
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(_shipped(certs, "tls/127.0.0.1:7447")))
     ok, lines = check(path)
@@ -279,7 +285,9 @@ def test_the_parts_run_through_the_secured_router_and_a_control_needs_the_token(
     cfg, _, join = bus
     monkeypatch.setenv(TOKEN_ENV, TOKEN)
     monkeypatch.delenv(IDENTITY_ENV, raising=False)
-    part = {**cfg, "learner": {**cfg["learner"], "steps": 60, "target_topic": "sim/target_truth"}}
+    # The learner drives the arm itself here (plan execution), through the router under its identity.
+    learner = {**cfg["learner"], "steps": 60, "target_topic": "sim/target_truth", "execution": "plan"}
+    part = {**cfg, "learner": learner}
     part["learner"]["checkpoint_dir"] = str(tmp_path / "l")
     part.pop("vision")
     probe = BusProbe(join("supervisor"))

@@ -30,6 +30,7 @@ from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, open_session, wait_listening
 from deploy.commands import TOKEN_ENV
+from deploy.config import compose_stack_yaml
 
 STALE_POSITION = (0.5, 0.28, 0.3)  # where the stale fixes say the target is (the truth is elsewhere)
 
@@ -79,7 +80,7 @@ def _zenoh(cfg: dict) -> m.Any:
 @pytest.fixture
 def arm(tmp_path: Path):
     """robot-io (watching the actor) and the actor, up and acting; yields (config dict, bench, token)."""
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg.pop("vision")
     cfg.pop("monitor")
     cfg["name"] = unique_name("act")

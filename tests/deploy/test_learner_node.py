@@ -17,6 +17,7 @@ from loopback import unique_name
 
 from bus import messages as m
 from bus.transport import Bus, ZenohConfig, open_session
+from deploy.config import compose_stack_yaml
 
 EVERY = 50  # checkpoint_every = one episode, so checkpoints fall on episode boundaries
 
@@ -47,7 +48,7 @@ def _learn(cfg: Path, *extra: str) -> subprocess.Popen:
 
 
 def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path, endpoint: str) -> None:
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name("ck")
     cfg["zenoh"]["hub"] = endpoint
     cfg.pop("vision")

@@ -18,6 +18,8 @@ import yaml
 from loopback import unique_name
 from stack_helpers import learn_one_episode
 
+from deploy.config import compose_stack_yaml
+
 PROBE = r"""
 import sys, time, threading
 from bus.transport import ZenohConfig, open_session
@@ -72,7 +74,7 @@ def _cli(*args: str) -> list[str]:
 def test_parts_started_alone_reach_each_other(tmp_path: Path, endpoint: str):
     """robot-io takes the hub; vision, monitor and learner join. Vision's target reaches the learner and
     the learner's retreats reach the monitor: joiner to joiner, which the old hub never carried."""
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name("alone")
     cfg["zenoh"]["hub"] = endpoint
     cfg["vision"]["rate_hz"] = 5.0

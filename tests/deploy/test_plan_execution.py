@@ -12,12 +12,11 @@ import time
 
 import numpy as np
 import pytest
-import yaml
 
 from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, open_session
-from deploy.config import StackConfig
+from deploy.config import StackConfig, compose_stack_yaml
 from deploy.learner_node import LearnerNode, env_settings
 from deploy.zenoh_env import ZenohReachEnv
 from learner.plans import Executed, Plan
@@ -158,7 +157,7 @@ def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub
             "checkpoint_dir": str(tmp_path),
             # the product's agent (its plan retreat's kernel): the defaults' 24 cm-wide kernel may let a
             # 300-step run pass without a retreat
-            "agent": yaml.safe_load(open("configs/sim.yaml"))["learner"]["agent"],
+            "agent": compose_stack_yaml("configs/sim.yaml")["learner"]["agent"],
         }
     )
     node = LearnerNode(stack.model_copy(update={"learner": learner}), control_token=probe.token)

@@ -14,7 +14,7 @@ from stack_helpers import learn_one_episode
 
 from bus import messages as m
 from bus.transport import Bus, open_session, wait_listening
-from deploy.config import load_stack_config
+from deploy.config import compose_stack_yaml, load_stack_config
 
 
 def test_two_routers_carry_a_run(tmp_path):
@@ -22,7 +22,7 @@ def test_two_routers_carry_a_run(tmp_path):
     r1 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e1])
     time.sleep(1.0)
     r2 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e2, "--connect", e1])
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name("rt")
     cfg.pop("vision")
     cfg["learner"].update(
@@ -51,7 +51,7 @@ def test_a_restarted_router_the_arm_holds_and_the_run_resumes(tmp_path):
     )
     first = router()
     wait_listening(endpoint)  # the parts must find it at start (a client exits when it cannot connect)
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name("rr")
     cfg.pop("vision")
     cfg["zenoh"] = {"mode": "client", "connect": [endpoint]}

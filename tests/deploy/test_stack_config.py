@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
 from common.config import ConfigError
-from deploy.config import StackConfig, load_stack_config
+from deploy.config import StackConfig, compose_stack_yaml, load_stack_config
 from deploy.learner_node import env_settings
 from learner.config import AGENT_CONFIGS
 from learner.registry import ALGOS
@@ -26,7 +27,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def _with(tmp_path: Path, section: str, key: str, value: object) -> Path:
     """configs/sim.yaml with ``section.key`` set to ``value`` (``section`` empty: a top-level key)."""
-    data = yaml.safe_load(SIM.read_text())
+    data = compose_stack_yaml(SIM)
     (data[section] if section else data)[key] = value
     return _write(tmp_path, yaml.safe_dump(data))
 
@@ -65,7 +66,7 @@ def test_a_bad_value_names_its_key_path_and_what_is_allowed(tmp_path, section, k
 
 
 def test_nested_keys_and_every_error_are_reported(tmp_path):
-    data = yaml.safe_load(SIM.read_text())
+    data = compose_stack_yaml(SIM)
     data["vision"]["detection"]["target_shape"] = "cone"
     data["robot"]["ik"]["iterations"] = 0
     message = str(pytest.raises(ConfigError, load_stack_config, _write(tmp_path, yaml.safe_dump(data))).value)
@@ -75,7 +76,7 @@ def test_nested_keys_and_every_error_are_reported(tmp_path):
 
 def test_numbers_yaml_reads_as_text_are_coerced(tmp_path):
     text = SIM.read_text().replace("watchdog_timeout_s: 0.5", "watchdog_timeout_s: 5e-1")
-    path = _write(tmp_path, text)
+    path = _write(tmp_path, text.replace("agent_from: reach.yaml", f"agent_from: {CONFIGS / 'reach.yaml'}"))
     assert yaml.safe_load(text)["robot"]["watchdog_timeout_s"] == "5e-1"  # YAML 1.1 wants a dot in a float
     assert load_stack_config(path).robot.watchdog_timeout_s == 0.5
 
@@ -94,7 +95,7 @@ def test_absent_parts_are_none_and_other_sections_default(tmp_path):
 
 
 def test_the_learner_env_takes_the_robots_workspace_rate_and_step(tmp_path):
-    data = yaml.safe_load(SIM.read_text())
+    data = compose_stack_yaml(SIM)
     data["robot"].update(workspace={"lo": [0.3, -0.3, 0.1], "hi": [0.7, 0.3, 0.6]}, max_step_m=0.02)
     data["robot"]["control_rate_hz"] = 10.0
     env = env_settings(load_stack_config(_write(tmp_path, yaml.safe_dump(data))))
@@ -125,3 +126,49 @@ def test_every_shipped_stack_config_loads(tmp_path, monkeypatch):
 
 def test_every_algo_has_its_agent_section():
     assert sorted(AGENT_CONFIGS) == sorted(ALGOS)
+
+
+def test_the_stack_learns_with_the_task_agent_it_names(tmp_path):
+    """``learner.agent_from``: the task config's agent, with this file's ``learner.agent`` laid over it key
+    by key; ``base``: a whole config laid over another. A key tuned in the task file reaches the stack."""
+    (tmp_path / "task.yaml").write_text(
+        yaml.safe_dump({"env": "NSReach-v0", "agent": {"gamma": 0.7, "h_max": 30}})
+    )
+    (tmp_path / "base.yaml").write_text(
+        yaml.safe_dump({"name": "basebot", "learner": {"agent_from": "task.yaml", "agent": {"h_max": 40}}})
+    )
+    (tmp_path / "site.yaml").write_text(yaml.safe_dump({"base": "base.yaml", "name": "sitebot"}))
+    cfg = load_stack_config(tmp_path / "site.yaml")
+    assert cfg.name == "sitebot" and cfg.learner.agent == {"gamma": 0.7, "h_max": 40}
+    shipped = compose_stack_yaml(SIM)["learner"]["agent"]
+    reach = yaml.safe_load((CONFIGS / "reach.yaml").read_text())["agent"]
+    assert shipped["gamma"] == reach["gamma"] and shipped["policy_budget"] == reach["policy_budget"]
+    tls = compose_stack_yaml(CONFIGS / "multi_machine_tls.yaml")
+    assert tls["learner"] == compose_stack_yaml(SIM)["learner"] and tls["zenoh"]["mode"] == "client"
+
+
+@pytest.mark.parametrize(
+    "files, complaint",
+    [
+        ({"c.yaml": {"base": "gone.yaml"}}, r"c.yaml: base: .*gone.yaml: no such config file"),
+        ({"c.yaml": {"base": "d.yaml"}, "d.yaml": {"base": "c.yaml"}}, r"base: c.yaml includes itself"),
+        ({"c.yaml": {"learner": {"agent_from": "gone.yaml"}}}, r"learner.agent_from: .*no such config file"),
+        ({"c.yaml": {"learner": {"agent_from": "t.yaml"}}, "t.yaml": {"env": "x"}}, r"t.yaml has no agent"),
+        ({"c.yaml": {"learner": {"agent_from": "t.yaml"}}, "t.yaml": {"agent": {"gama": 1}}}, r"gama"),
+    ],
+)
+def test_a_broken_overlay_names_its_key(tmp_path, files, complaint):
+    for name, data in files.items():
+        (tmp_path / name).write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=complaint):
+        load_stack_config(tmp_path / "c.yaml")
+
+
+def test_config_show_prints_the_merged_config_or_names_the_bad_key(tmp_path):
+    show = [sys.executable, "-m", "deploy.cli", "config", "show"]
+    out = subprocess.run([*show, str(SIM)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert yaml.safe_load(out.stdout) == compose_stack_yaml(SIM)
+    bad = _with(tmp_path, "robot", "watchdog_timeout_s", -1)
+    out = subprocess.run([*show, str(bad)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "robot.watchdog_timeout_s" in out.stderr

@@ -9,14 +9,14 @@ import yaml
 from loopback import unique_name
 
 from bus.transport import Bus, ZenohConfig, open_session
-from deploy.config import load_stack_config
+from deploy.config import compose_stack_yaml, load_stack_config
 from deploy.learner_node import env_settings
 from deploy.zenoh_env import ZenohReachEnv
 from tasks.reach_env import NSReachEnv
 
 
 def test_sim_yaml_env_scales_states_like_the_in_process_env(endpoint):
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     settings = load_stack_config("configs/sim.yaml")
     bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), unique_name("z"))
     inproc = NSReachEnv(motion=cfg["robot"]["target_motion"], seed=0)
@@ -33,7 +33,7 @@ def test_sim_yaml_env_scales_states_like_the_in_process_env(endpoint):
 
 
 def test_target_box_is_validated(tmp_path):
-    cfg = yaml.safe_load(open("configs/sim.yaml"))
+    cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["learner"]["target_box"] = [[0.6, 0.0, 0.1], [0.4, 0.3, 0.5]]
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))
