@@ -48,7 +48,7 @@ from stack_bench import curve, latency, quarters, run_in_process  # noqa: E402
 from bus import messages as m  # noqa: E402
 from bus.signing import mac_key  # noqa: E402
 from bus.transport import Bus, open_session  # noqa: E402
-from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
+from deploy.config import compose_stack_yaml, load_stack_config, load_yaml  # noqa: E402
 from deploy.stack import running_parts  # noqa: E402
 
 OUT = ROOT / "results" / "stack_robustness"
@@ -62,6 +62,20 @@ CONDITIONS: dict[str, dict[str, Any]] = {
     "slow_camera": {"camera_hz": SLOW_CAMERA_HZ},
     "robot_io_restart": {"kill_robot_io": True},
 }
+
+# The stack's agent against reach.yaml's (issue #35: does the stack need another agent than the task's?).
+# Each is laid over configs/sim.yaml's composed agent; "" is the shipped one. reach_agent: reach.yaml's as
+# it is (its kernel on the relative coordinates, its step and exploration schedules) with the plan
+# retreat's tolerance kept; reach_agent_plan1: the same, the plan retreat at the policy's own kernel.
+VARIANTS = ("", "reach_agent", "reach_agent_plan1")
+
+
+def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
+    if not variant:
+        return agent
+    reach = {**load_yaml(ROOT / "configs/reach.yaml")["agent"], "retreat": None}
+    scale = agent["plan_kernel_scale"] if variant == "reach_agent" else 1.0
+    return {**reach, "plan_kernel_scale": scale}
 
 
 class Watcher:
@@ -227,11 +241,21 @@ def reference(base: dict, seed: int, steps: int) -> dict[str, Any]:
     }
 
 
+def label(run: dict[str, Any]) -> str:
+    """A run's row: its condition, after its agent variant when it is not the shipped agent."""
+    return f"{run['variant']}/{run['condition']}" if run.get("variant") else run["condition"]
+
+
+def _labels(runs: list[dict[str, Any]]) -> list[str]:
+    order = [f"{v}/{c}" if v else c for v in VARIANTS for c in [*CONDITIONS, "in_process"]]
+    return [x for x in order if any(label(r) == x for r in runs)]
+
+
 def table(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Per condition: last-quarter success median and range over seeds, and the non-take-offs."""
     out: dict[str, Any] = {}
-    for cond in [*CONDITIONS, "in_process"]:
-        rows = [r for r in runs if r["condition"] == cond]
+    for cond in _labels(runs):
+        rows = [r for r in runs if label(r) == cond]
         if not rows:
             continue
         last = [r["success_by_quarter"][-1] for r in rows if r["success_by_quarter"][-1] is not None]
@@ -254,10 +278,10 @@ def plot(runs: list[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    conds = [c for c in [*CONDITIONS, "in_process"] if any(r["condition"] == c for r in runs)]
+    conds = _labels(runs)
     fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(conds)), 4))
     for i, cond in enumerate(conds):
-        rows = [r for r in runs if r["condition"] == cond]
+        rows = [r for r in runs if label(r) == cond]
         for r in rows:
             q = [np.nan if x is None else 100 * x for x in r["success_by_quarter"]]
             ax.plot(i + np.array([-0.3, -0.1, 0.1, 0.3]), q, "o-", ms=3, alpha=0.7)
@@ -279,15 +303,18 @@ def main() -> int:
     ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS))
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--no-reference", action="store_true", help="skip the in-process runs")
+    ap.add_argument("--variant", default="", choices=VARIANTS, help="the agent (default: configs/sim.yaml's)")
     args = ap.parse_args()
     os.chdir(ROOT)
     base = compose_stack_yaml(ROOT / "configs/sim.yaml")
+    base["learner"]["agent"] = variant_agent(args.variant, base["learner"]["agent"])
+    prefix = f"{args.variant}-" if args.variant else ""
     OUT.mkdir(parents=True, exist_ok=True)
     todo = [(c, s) for s in args.seeds for c in args.conditions]
     if not args.no_reference:
         todo += [("in_process", s) for s in args.seeds]
     for i, (cond, seed) in enumerate(todo, 1):
-        file = OUT / f"{cond}_s{seed}_{args.steps}.json"
+        file = OUT / f"{prefix}{cond}_s{seed}_{args.steps}.json"
         if file.exists():
             print(f"[{i}/{len(todo)}] {cond} seed {seed}: done earlier ({file.name})")
             continue
@@ -298,6 +325,7 @@ def main() -> int:
             else run_one(base, cond, seed, args.steps)
         )
         run.update(commit=_commit(), machine={"cpus": os.cpu_count(), "python": platform.python_version()})
+        run.update(variant=args.variant, agent=base["learner"]["agent"])
         file.write_text(json.dumps(run, indent=1, default=float))
         print(f"  success by quarter {run['success_by_quarter']}", flush=True)
     runs = [json.loads(p.read_text()) for p in sorted(OUT.glob(f"*_{args.steps}.json"))]
