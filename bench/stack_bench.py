@@ -194,6 +194,7 @@ def run_zenoh(
         "retreat_dropped_moving": res["retreat_dropped_moving"],
         "segments": len(res["segments"]),
         "retreats": sum(s["reason"] == "retreat" for s in res["segments"]),
+        "mean_H": float(np.mean([s["H"] for s in res["segments"]])) if res["segments"] else None,
         "curve": curve(res["episodes"]),
     }
 
@@ -221,6 +222,7 @@ def run_in_process(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]
         "wall_clock_s": res["wall_clock_s"],
         "segments": len(res["segments"]),
         "retreats": sum(s["reason"] == "retreat" for s in res["segments"]),
+        "mean_H": float(np.mean([s["H"] for s in res["segments"]])) if res["segments"] else None,
         "curve": curve(res["episodes"]),
     }
 

@@ -237,6 +237,7 @@ def reference(base: dict, seed: int, steps: int) -> dict[str, Any]:
         "final_distance_by_quarter": quarters(c, "final_distance"),
         "retreats": res["retreats"],
         "segments": res["segments"],
+        "mean_H": res["mean_H"],
         "wall_clock_s": res["wall_clock_s"],
     }
 

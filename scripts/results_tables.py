@@ -1,0 +1,107 @@
+"""The headline tables of README.md and docs/ rendered from results/*.json, so no number is typed by hand.
+
+A table sits between ``<!-- table: NAME -->`` and ``<!-- end table -->``; ``python
+scripts/results_tables.py`` rewrites every such block from its results file, ``--check`` exits 1 naming
+the blocks that differ (``tests/scripts/test_results_tables.py`` runs the check).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import statistics
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+BLOCK = re.compile(r"(<!-- table: (?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- end table -->)", re.S)
+GOAL = 0.70  # issue #32: last-quarter success in every run
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.0f}"
+
+
+def _median(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None]
+    return statistics.median(values) if values else None
+
+
+def _fmt(x: float | None, spec: str = ".0f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def _row_label(run: dict[str, Any]) -> str:
+    return f"{run['variant']}/{run['condition']}" if run.get("variant") else run["condition"]
+
+
+def stack_robustness(data: dict[str, Any]) -> str:
+    """``results/stack_robustness.json``: one row per condition, medians over its seeds."""
+    lines = [
+        "| condition | seeds | last-quarter success %, median (range) | success by quarter %, median |"
+        " runs < 70 % | mean H | workspace clips | target age p50 / p99 ms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for label, row in data["table"].items():
+        runs = [r for r in data["runs"] if _row_label(r) == label]
+        last = [r["success_by_quarter"][-1] for r in runs]
+        by_q = " / ".join(_pct(_median([r["success_by_quarter"][q] for r in runs])) for q in range(4))
+        lo, hi = row["last_quarter_success_range"]
+        ages = [r.get("target_age_ms") or {} for r in runs]
+        age = f"{_fmt(_median([a.get('p50') for a in ages]))} / {_fmt(_median([a.get('p99') for a in ages]))}"
+        in_process = row.get("seeds") and label.endswith("in_process")
+        lines.append(
+            f"| {label} | {', '.join(map(str, row['seeds']))} "
+            f"| {_pct(row['last_quarter_success_median'])} ({_pct(lo)}-{_pct(hi)}) | {by_q} "
+            f"| {sum(x is not None and x < GOAL for x in last)} "
+            f"| {_fmt(_median([r.get('mean_H') for r in runs]), '.1f')} "
+            f"| {'-' if in_process else _fmt(row['workspace_clips_median'])} "
+            f"| {'-' if in_process else age} |"
+        )
+    restarts = [(r.get("robot_io_restart") or {}).get("resumed_after_s") for r in data["runs"]]
+    shown = ", ".join(f"{s:.1f}" for s in restarts if s is not None)
+    if shown:
+        lines += ["", f"robot-io SIGKILLed halfway: learning resumed {shown} s after the kill."]
+    return "\n".join(lines) + "\n"
+
+
+TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
+    "stack_robustness": ("results/stack_robustness.json", stack_robustness),
+}
+
+
+def render(name: str) -> str:
+    if name not in TABLES:
+        raise KeyError(f"table {name!r}: no such table; known: {sorted(TABLES)}")
+    path, make = TABLES[name]
+    return make(json.loads((ROOT / path).read_text()))
+
+
+def refreshed(text: str) -> str:
+    """``text`` with every table block rendered again."""
+    return BLOCK.sub(lambda mt: mt.group(1) + render(mt.group("name")) + mt.group(4), text)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="change nothing; exit 1 if a table is stale")
+    args = ap.parse_args()
+    stale = []
+    for doc in DOCS:
+        text = doc.read_text()
+        new = refreshed(text)
+        if new != text:
+            stale.append(str(doc.relative_to(ROOT)))
+            if not args.check:
+                doc.write_text(new)
+    if stale:
+        print(("stale tables in: " if args.check else "rewrote: ") + ", ".join(stale))
+    return 1 if stale and args.check else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
