@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common.proc_status import status_field  # noqa: E402
-from deploy.config import load_stack_config  # noqa: E402
+from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.robot_io_node import RobotIONode  # noqa: E402
 from robot_io.backends.franky_model import ModelMismatch  # noqa: E402
 from robot_io.backends.franky_sim import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
@@ -194,7 +194,7 @@ class Counts:
 
 
 def stack_config(args: argparse.Namespace, tmp: Path) -> Path:
-    cfg = yaml.safe_load((ROOT / args.config).read_text())
+    cfg = compose_stack_yaml(ROOT / args.config)
     rate = cfg["robot"]["control_rate_hz"]
     cfg["name"] = f"fsim{uuid.uuid4().hex[:10]}"
     cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}

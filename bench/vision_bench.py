@@ -39,7 +39,7 @@ from loopback import free_port, unique_name  # noqa: E402
 
 from bus import messages as m  # noqa: E402
 from bus.transport import Bus, ZenohConfig, open_session  # noqa: E402
-from deploy.config import load_stack_config  # noqa: E402
+from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.vision_node import SimFramePublisher  # noqa: E402
 from sim.panda_scene import PandaScene  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera  # noqa: E402
@@ -134,7 +134,7 @@ def bench_tracking(vision, seconds: float = 10.0) -> dict:
 
 
 def bench_latency(config_path: Path, seconds: float) -> dict:
-    raw = yaml.safe_load(config_path.read_text())
+    raw = compose_stack_yaml(config_path)
     port = free_port()
     raw["name"] = unique_name("bench")
     raw["zenoh"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{port}"]}

@@ -3,6 +3,7 @@
 import importlib.util
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -49,7 +50,7 @@ def test_franka_check_reads_the_arms_version_when_it_answers():
 def test_sim_check_passes_and_bad_config_is_named(tmp_path):
     assert _check("configs/sim.yaml").returncode == 0
     bad = tmp_path / "bad.yaml"
-    bad.write_text(open("configs/sim.yaml").read().replace("algo: adaptiveh", "algo: ppo"))
+    bad.write_text(f"base: {Path('configs/sim.yaml').resolve()}\nlearner: {{algo: ppo}}\n")  # an overlay
     out = _check(str(bad))
     assert out.returncode == 1 and "learner" in out.stdout and "ppo" in out.stdout
 
