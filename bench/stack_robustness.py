@@ -67,12 +67,16 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # Each is laid over configs/sim.yaml's composed agent; "" is the shipped one. reach_agent: reach.yaml's as
 # it is (its kernel on the relative coordinates, its step and exploration schedules) with the plan
 # retreat's tolerance kept; reach_agent_plan1: the same, the plan retreat at the policy's own kernel.
-VARIANTS = ("", "reach_agent", "reach_agent_plan1")
+# learned_tolerance (issue #33): the shipped agent with the plan retreat's tolerance learned from the
+# plan's own prediction error (learner/plan_tolerance.py) instead of plan_kernel_scale.
+VARIANTS = ("", "reach_agent", "reach_agent_plan1", "learned_tolerance")
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
     if not variant:
         return agent
+    if variant == "learned_tolerance":
+        return {**agent, "plan_tolerance": "learned"}
     reach = {**load_yaml(ROOT / "configs/reach.yaml")["agent"], "retreat": None}
     scale = agent["plan_kernel_scale"] if variant == "reach_agent" else 1.0
     return {**reach, "plan_kernel_scale": scale}

@@ -161,7 +161,7 @@ class ActorNode(Node):
         """(the retreat statistic, how the segment stands after ``step``): as ``AdaptiveH`` closes one."""
         stat = None
         if plan is not None and step.plan_id == plan.plan_id:
-            stat = self.actor.statistic(plan.predicted[step.index + 1], step.obs)
+            stat = self.actor.statistic(step.index + 1, plan.predicted[step.index + 1], step.obs)
         if self.actor.retreats(stat):
             return stat, "retreat"
         if length >= self.actor.segment_limit:

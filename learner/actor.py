@@ -35,7 +35,7 @@ class Actor:
         self.config = config
         self.normalize = StateNormalizer.for_env(env)
         self.state_dim = len(self.normalize.centre)
-        self.kernel, self.plan_kernel = kernels(config, self.state_dim)
+        self.kernel, self.plan_tolerance = kernels(config, self.state_dim)
         self.policy = initial_policy(config, env, self.kernel)
         self.action_dim = len(self.policy.low)
         self.field = RKHSFunction(self.kernel, self.action_dim, FIELD_BUDGET, config.policy_ald)
@@ -72,14 +72,13 @@ class Actor:
         self._next_plan_id += 1
         return plan
 
-    def statistic(self, predicted: np.ndarray, reached: np.ndarray) -> float | None:
-        """The retreat statistic of a plan that predicted ``predicted`` and reached ``reached``
-        (observations); None where the field has no estimate yet (or the retreat is off)."""
+    def statistic(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float | None:
+        """The retreat statistic of a plan that predicted ``predicted`` ``ahead`` steps in and reached
+        ``reached`` (observations); None where the field has no estimate yet (or the retreat is off)."""
         if not self.retreats_on:
             return None
-        return plan_statistic(
-            self.field, self.plan_kernel, self.normalize(predicted), self.normalize(reached)
-        )
+        predicted, reached = self.normalize(predicted), self.normalize(reached)
+        return plan_statistic(self.field, self.plan_tolerance, ahead, predicted, reached)
 
     def retreats(self, stat: float | None) -> bool:
         return stat is not None and stat < self.threshold

@@ -32,6 +32,7 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
+from learner.plan_tolerance import FixedTolerance, LearnedTolerance, PlanTolerance
 from learner.plans import Plan, PlanChannel, QueuedChannel, opening, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
@@ -50,14 +51,20 @@ def _info_scalars(info: dict) -> dict[str, float]:
     return out
 
 
-def kernels(cfg: AdaptiveHConfig, dim: int) -> tuple[GaussianKernel, GaussianKernel]:
-    """(the policy's kernel, the plan kernel that compares a plan's predicted state with the reached one)."""
+def kernels(cfg: AdaptiveHConfig, dim: int) -> tuple[GaussianKernel, PlanTolerance]:
+    """(the policy's kernel, the plan tolerance that compares a plan's predicted state with the reached
+    one: the policy's kernel scaled by ``plan_kernel_scale``, or learned from the plan's own gaps)."""
     for key in ("bandwidth", "plan_kernel_scale", "critic_bandwidth"):
         n = np.size(getattr(cfg, key))
         if getattr(cfg, key) is not None and n not in (1, dim):
             raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
     kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
-    return kernel, GaussianKernel(kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
+    if cfg.plan_tolerance == "learned":
+        threshold = retreat_threshold(cfg, kernel)
+        return kernel, LearnedTolerance(dim, cfg.h_max, threshold, cfg.plan_false_alarm)
+    return kernel, FixedTolerance(
+        GaussianKernel(kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
+    )
 
 
 def initial_policy(cfg: AdaptiveHConfig, env: gym.Env, kernel: GaussianKernel) -> RKHSGaussianPolicy:
@@ -96,7 +103,7 @@ class AdaptiveH:
             raise ValueError("the RKHS learner needs a continuous (Box) action space")
         self.normalize = StateNormalizer.for_env(env)
         dim = len(self.normalize.centre)
-        self.kernel, plan_kernel = kernels(cfg, dim)
+        self.kernel, plan_tolerance = kernels(cfg, dim)
         self.policy = initial_policy(cfg, env, self.kernel)
         critic_kernel = self.kernel
         if cfg.critic_bandwidth is not None:
@@ -123,7 +130,7 @@ class AdaptiveH:
             cfg.retreat_smoothing,
             min(cfg.policy_budget, FIELD_BUDGET),
             cfg.policy_ald,
-            plan_kernel,
+            plan_tolerance,
         )
         self.segment_limit = segment_limit(cfg)
         self.grad_scale = 1.0 / (1.0 - cfg.gamma) if cfg.use_discount_factor else 1.0
@@ -239,7 +246,15 @@ class AdaptiveH:
         self._ep_len += 1
         episode_over = step.terminated or step.truncated
         record = self._learn_from(
-            s, raw, step.reward, step.obs, step.terminated, episode_over, predicted, reached
+            s,
+            raw,
+            step.reward,
+            step.obs,
+            step.terminated,
+            episode_over,
+            predicted,
+            reached,
+            ahead=step.index + 1,
         )
         if step.plan_id == self._plan.plan_id:
             self._plan_started = True
@@ -269,9 +284,11 @@ class AdaptiveH:
         decided: str | None = None,
         statistic: float | None = None,
         noise: np.ndarray | None = None,
+        ahead: int = 0,
     ) -> SegmentRecord | None:
-        """Learn from one executed step. The segment closes by the agent's own test, or where ``decided``
-        says (an actor's: "open", "retreat", "h_max" or "episode_end", with the ``statistic`` it saw)."""
+        """Learn from one executed step (``predicted``: ``ahead`` steps into its plan). The segment closes
+        by the agent's own test, or where ``decided`` says (an actor's: "open", "retreat", "h_max" or
+        "episode_end", with the ``statistic`` it saw)."""
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
             # A NaN must never reach the dictionaries: drop the sample and close the segment.
@@ -290,7 +307,7 @@ class AdaptiveH:
             self._accrue(s, score, advantage, episode_over)
         if self.replay is not None:
             self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
-        retreat = self.retreat.push(s, g, predicted, reached, decided is not None, statistic)
+        retreat = self.retreat.push(s, g, predicted, reached, decided is not None, statistic, ahead)
         if decided is not None:  # an actor's plan: it evaluated the retreat where the plan played
             return self._close_segment(decided) if decided != "open" else None
         if retreat:

@@ -62,6 +62,11 @@ class AdaptiveHConfig(Section):
     # unseen (NS Reach: 30 cm wide on the relative coordinates, 5 cm success radius). 1: the same kernel.
     # One factor, or one per state dimension (e.g. only the relative coordinates of NS Reach).
     plan_kernel_scale: Scale | list[Scale] = 1.0
+    # Or the plan's own noise sets it (learner/plan_tolerance.py): ``learned`` standardises the gap between
+    # predicted and reached state by its running mean square per plan step, so that the kernel term alone
+    # retreats on a fraction ``plan_false_alarm`` of ticks whose gap is as usual (plan_kernel_scale unused).
+    plan_tolerance: Literal["fixed", "learned"] = "fixed"
+    plan_false_alarm: float = Field(0.01, gt=0, lt=0.5)
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = Field(50, ge=1)
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)

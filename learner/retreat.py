@@ -36,8 +36,9 @@ Exploration noise averages out; a systematic change of the gradient rotates ``G`
   the world fails it when the world has left the kernel's reach of what the plan assumed, or when the
   ascent directions there disagree; ``local`` compares actual states only and cannot see a plan going
   stale. Without a plan (closed loop) it never fires. ``k(ŝ_i,s_i)`` may be narrower than the policy's
-  (``plan_kernel``, the config's ``plan_kernel_scale``): the policy's kernel is as wide as generalisation
-  wants, and a plan can then drift by a task's whole tolerance before the kernel notices.
+  (the config's ``plan_kernel_scale``): the policy's kernel is as wide as generalisation wants, and a
+  plan can then drift by a task's whole tolerance before the kernel notices; or learned from how far
+  the plan's predictions normally miss (``plan_tolerance: learned``, ``learner.plan_tolerance``).
 All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = Σ_ab k(s_a,s_b) g_aᵀg_b``.
 """
 
@@ -49,6 +50,7 @@ import numpy as np
 
 from learner.dictionary import RKHSFunction
 from learner.kernels import GaussianKernel
+from learner.plan_tolerance import FixedTolerance, PlanTolerance
 
 RetreatMode = Literal["local", "plan", "smoothed", "literal", "off"]
 MODES: tuple[str, ...] = get_args(RetreatMode)
@@ -70,14 +72,17 @@ def default_threshold(mode: str, kernel: GaussianKernel, epsilon: float) -> floa
 
 
 def plan_statistic(
-    field: RKHSFunction, plan_kernel: GaussianKernel, predicted: np.ndarray, reached: np.ndarray
+    field: RKHSFunction, tolerance: PlanTolerance, ahead: int, predicted: np.ndarray, reached: np.ndarray
 ) -> float | None:
-    """Mode ``plan``'s ``k(ŝ,s) G(ŝ)ᵀG(s) / ‖G(ŝ)‖²``; None while ``G`` is zero where the plan went."""
+    """Mode ``plan``'s ``k(ŝ,s) G(ŝ)ᵀG(s) / ‖G(ŝ)‖²`` for a state predicted ``ahead`` steps into the plan
+    (the tolerance learns the gap afterwards); None while ``G`` is zero where the plan went."""
     dp, dr = field(predicted), field(reached)
     n = float(dp @ dp)
+    k = tolerance.value(ahead, predicted, reached)
+    tolerance.observe(ahead, predicted, reached)
     if n <= 1e-300:
         return None
-    return plan_kernel.pair(predicted, reached) * float(dp @ dr) / n
+    return k * float(dp @ dr) / n
 
 
 class RetreatCheck:
@@ -91,14 +96,15 @@ class RetreatCheck:
         smoothing: float = 0.05,
         budget: int = 200,
         ald_threshold: float = 0.05,
-        plan_kernel: GaussianKernel | None = None,
+        plan_tolerance: PlanTolerance | None = None,
     ):
         if mode not in MODES:
             raise ValueError(f"retreat mode must be one of {MODES}, got {mode!r}")
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"retreat smoothing must be in (0, 1], got {smoothing}")
         self.kernel, self.mode, self.threshold, self.smoothing = kernel, mode, threshold, smoothing
-        self.plan_kernel = plan_kernel or kernel  # compares a plan's predicted state with the reached one
+        # Compares a plan's predicted state with the reached one.
+        self.plan_tolerance = plan_tolerance or FixedTolerance(kernel)
         self.field = RKHSFunction(kernel, 0, budget, ald_threshold)  # out_dim set on first push
         self._snapshot: tuple[np.ndarray, np.ndarray, float] | None = None
         self.states: list[np.ndarray] = []
@@ -118,12 +124,14 @@ class RetreatCheck:
         reached: np.ndarray | None = None,
         judged: bool = False,
         statistic: float | None = None,
+        ahead: int = 0,
     ) -> bool:
         """Record a step; True when the retreat condition fails (statistic below threshold).
 
         ``predicted``/``reached``: the (normalised) state the running plan predicted after this step and
-        the one reached, for mode ``plan``. ``judged``: the statistic was evaluated where the plan played
-        (an actor's ``statistic``, None: not evaluated); the gradient field still learns from ``g`` here.
+        the one reached, for mode ``plan``, ``ahead`` steps into the plan. ``judged``: the statistic was
+        evaluated where the plan played (an actor's ``statistic``, None: not evaluated); the gradient
+        field still learns from ``g`` here.
         """
         self.states.append(s)
         self.grads.append(g)
@@ -139,7 +147,7 @@ class RetreatCheck:
         elif self.mode == "local":
             stat = self._local(s, g)
         elif self.mode == "plan":
-            stat = self._plan(s, g, predicted, reached)
+            stat = self._plan(s, g, predicted, reached, ahead)
         else:
             stat = self._smoothed(s, g)
         if stat is None:
@@ -179,12 +187,17 @@ class RetreatCheck:
         return self.kernel.pair(self.states[0], s) * float(d0 @ di) / n0
 
     def _plan(
-        self, s: np.ndarray, g: np.ndarray, predicted: np.ndarray | None, reached: np.ndarray | None
+        self,
+        s: np.ndarray,
+        g: np.ndarray,
+        predicted: np.ndarray | None,
+        reached: np.ndarray | None,
+        ahead: int,
     ) -> float | None:
         self._update_field(g, s)
         if predicted is None or reached is None:
             return None  # no plan running: nothing was assumed
-        return plan_statistic(self.field, self.plan_kernel, predicted, reached)
+        return plan_statistic(self.field, self.plan_tolerance, ahead, predicted, reached)
 
     def state_dict(self) -> dict:
         return {
@@ -193,10 +206,13 @@ class RetreatCheck:
             "states": self.states,
             "grads": self.grads,
             "trace": self.trace,
+            "plan_tolerance": getattr(self.plan_tolerance, "state_dict", dict)(),
         }
 
     def load_state_dict(self, state: dict) -> None:
         self.field.load_state_dict(state["field"])
         self._snapshot = state["snapshot"]
+        if state.get("plan_tolerance") and hasattr(self.plan_tolerance, "load_state_dict"):
+            self.plan_tolerance.load_state_dict(state["plan_tolerance"])
         self.states, self.grads = list(state["states"]), list(state["grads"])
         self.trace = list(state["trace"])

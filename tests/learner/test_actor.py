@@ -42,9 +42,13 @@ def test_an_actor_with_the_learners_snapshot_plans_and_judges_as_the_learner(tra
         np.testing.assert_allclose(
             actor.policy.mean(actor.normalize(obs)), agent.policy.mean(agent.normalize(obs))
         )
-        ours = actor.statistic(obs, reached)
+        ours = actor.statistic(3, obs, reached)
         theirs = plan_statistic(
-            agent.retreat.field, agent.retreat.plan_kernel, agent.normalize(obs), agent.normalize(reached)
+            agent.retreat.field,
+            agent.retreat.plan_tolerance,
+            3,
+            agent.normalize(obs),
+            agent.normalize(reached),
         )
         assert ours == pytest.approx(theirs)
     plan = actor.plan(obs, segment=3, opened_by="retreat")

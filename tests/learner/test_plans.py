@@ -113,12 +113,14 @@ def test_plan_tolerance_sets_how_far_a_plan_may_drift_before_the_retreat():
     """The same 5 cm-like deviation (0.1 in normalised units) is invisible to a 0.5-wide policy kernel and
     fails a 0.05-wide plan tolerance; the gradient field is the same in both."""
     from learner.kernels import GaussianKernel
+    from learner.plan_tolerance import FixedTolerance
     from learner.retreat import RetreatCheck
 
     wide = GaussianKernel(0.5, 2)
 
     def statistic(plan_kernel):
-        check = RetreatCheck(wide, "plan", 0.5, smoothing=1.0, plan_kernel=plan_kernel)
+        tolerance = FixedTolerance(plan_kernel) if plan_kernel is not None else None
+        check = RetreatCheck(wide, "plan", 0.5, smoothing=1.0, plan_tolerance=tolerance)
         predicted, reached = np.zeros(2), np.array([0.1, 0.0])
         fired = check.push(reached, np.array([1.0, 0.0]), predicted, reached)
         return fired, check.trace[-1]
@@ -139,7 +141,7 @@ def test_the_retreat_follows_the_execution_unless_set():
     pinned = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "retreat": "local"})
     assert pinned.retreat.mode == "local"
     narrow = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 0.1})
-    np.testing.assert_allclose(narrow.retreat.plan_kernel.bandwidth, narrow.kernel.bandwidth * 0.1)
+    np.testing.assert_allclose(narrow.retreat.plan_tolerance.kernel.bandwidth, narrow.kernel.bandwidth * 0.1)
     with pytest.raises(ValueError, match="plan_kernel_scale"):
         make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 2.0})
     with pytest.raises(ValueError, match="plan_kernel_scale: expected 1 or 4 values"):
