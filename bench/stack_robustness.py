@@ -69,12 +69,18 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # retreat's tolerance kept; reach_agent_plan1: the same, the plan retreat at the policy's own kernel.
 # learned_tolerance (issue #33): the shipped agent with the plan retreat's tolerance learned from the
 # plan's own prediction error (learner/plan_tolerance.py) instead of plan_kernel_scale.
-VARIANTS = ("", "reach_agent", "reach_agent_plan1", "learned_tolerance")
+# mean_limit: the shipped agent with the policy's mean bounded to the action box (a mean far past the
+# box clips every sample to the same action, which then carries no gradient: the non-take-off's
+# suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
+VARIANTS = ("", "reach_agent", "reach_agent_plan1", "learned_tolerance", "mean_limit", "again")
+ACTION_BOX_M = 0.05  # NS Reach's action bound per axis (robot.max_step_m)
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if not variant:
+    if variant in ("", "again"):
         return agent
+    if variant == "mean_limit":
+        return {**agent, "mean_limit": ACTION_BOX_M}
     if variant == "learned_tolerance":
         return {**agent, "plan_tolerance": "learned"}
     reach = {**load_yaml(ROOT / "configs/reach.yaml")["agent"], "retreat": None}
