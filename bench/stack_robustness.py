@@ -72,13 +72,18 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # mean_limit: the shipped agent with the policy's mean bounded to the action box (a mean far past the
 # box clips every sample to the same action, which then carries no gradient: the non-take-off's
 # suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
-VARIANTS = ("", "reach_agent", "reach_agent_plan1", "learned_tolerance", "mean_limit", "again")
+# old_agent: the stack's agent before it took reach.yaml's (kernel 0.5 on the relative coordinates, no
+# step or exploration schedules), kept for comparison.
+VARIANTS = ("", "old_agent", "reach_agent", "reach_agent_plan1", "learned_tolerance", "mean_limit", "again")
 ACTION_BOX_M = 0.05  # NS Reach's action bound per axis (robot.max_step_m)
+OLD_AGENT = {"alpha_final": None, "sigma_final": None, "bandwidth": [5.0] * 12 + [0.5] * 3}
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
     if variant in ("", "again"):
         return agent
+    if variant == "old_agent":
+        return {**agent, **OLD_AGENT}
     if variant == "mean_limit":
         return {**agent, "mean_limit": ACTION_BOX_M}
     if variant == "learned_tolerance":
