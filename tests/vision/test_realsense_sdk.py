@@ -19,8 +19,12 @@ import pytest
 
 try:
     import pyrealsense2 as rs
-except ModuleNotFoundError:  # not installed: skip. Installed but not loadable (no libusb): fail, loudly
-    pytest.skip("pyrealsense2 is not installed (the realsense extra)", allow_module_level=True)
+except ImportError as exc:  # not installed, or installed without the library it loads (Debian's libusb-1.0-0)
+    pytest.skip(
+        f"pyrealsense2 cannot be imported here ({exc}): install the realsense extra and Debian's libusb-1.0-0"
+        " (scripts/test.sh does both)",
+        allow_module_level=True,
+    )
 
 from vision.cameras.protocol import CameraError  # noqa: E402
 from vision.cameras.realsense import RealSenseCamera  # noqa: E402
