@@ -177,12 +177,14 @@ def run_one(base: dict, condition: str, seed: int, steps: int) -> dict[str, Any]
         burners = _burners(cond.get("load", 0))
         summary_path = tmp / "summary.json"
         t0 = time.time()
+        errors = (tmp / "up.stderr").open("w")
         up = subprocess.Popen(
             [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(summary_path)],
             stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
+            stderr=errors,
             text=True,
         )
+        watcher: Watcher | None = None
         try:
             token = up.stdout.readline().strip().removeprefix("operator token: ")
             watcher = Watcher(path, token)
@@ -196,6 +198,14 @@ def run_one(base: dict, condition: str, seed: int, steps: int) -> dict[str, Any]
                 p.kill()
             if up.poll() is None:
                 up.kill()
+            errors.close()
+            if watcher is not None and not summary_path.exists():
+                watcher.bus.close()  # its Zenoh threads would keep this process from exiting
+        if not summary_path.exists():
+            tail = (tmp / "up.stderr").read_text()[-3000:]
+            raise RuntimeError(
+                f"{condition} seed {seed}: adaptiveh up exited {up.returncode} without a summary:\n{tail}"
+            )
         summary = json.loads(summary_path.read_text())
         result = json.loads((tmp / "learner" / "result.json").read_text())
         with watcher.lock:
