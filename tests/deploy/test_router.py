@@ -20,8 +20,9 @@ from deploy.config import compose_stack_yaml, load_stack_config
 def test_two_routers_carry_a_run(tmp_path):
     e1, e2 = free_endpoint(), free_endpoint()
     r1 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e1])
-    time.sleep(1.0)
+    wait_listening(e1)
     r2 = subprocess.Popen([sys.executable, "-m", "deploy.cli", "router", "--listen", e2, "--connect", e1])
+    wait_listening(e2)  # a client exits when it cannot connect, so both must be up before the parts start
     cfg = compose_stack_yaml("configs/sim.yaml")
     cfg["name"] = unique_name("rt")
     cfg.pop("vision")
