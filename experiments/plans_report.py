@@ -97,10 +97,6 @@ def group_stats(group: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _boot_means(x: np.ndarray, rng: np.random.Generator, n_boot: int) -> np.ndarray:
-    return x[rng.integers(0, len(x), size=(n_boot, len(x)))].mean(axis=1)
-
-
 def front_gap(
     front: list[tuple[list[float], list[float]]],
     point: tuple[list[float], list[float]],
