@@ -5,8 +5,9 @@
 1. Detection + deprojection (+ base-frame transform) at 640x480 on one core (CPU affinity 1 core,
    OpenCV single-threaded), on rendered frames of the Panda scene; also the full per-frame pipeline
    (validation, detection, deprojection, tracking).
-2. Sim render (PyBullet TinyRenderer, with depth conversion and noise) at the configured size and at
-   640x480, of the full scene (Panda, table, target).
+2. Sim render side by side (MuJoCo's renderer on EGL, PyBullet's TinyRenderer, PyBullet's EGL plugin;
+   with depth conversion and noise) at the configured size and at 640x480, of the full scene (Panda,
+   table, target); and render + detection + deprojection at 640x480.
 3. End to end: this process renders and publishes ``camera/frame`` at the configured rate
    (``vision.camera: frames``); ``adaptiveh vision`` runs in another process; this process receives
    ``target``. Latency from the frame's capture stamp (taken before rendering, like a camera's
@@ -16,6 +17,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
@@ -25,6 +27,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from unittest import mock
 
 import cv2
 import numpy as np
@@ -43,7 +46,7 @@ from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.vision_node import SimFramePublisher  # noqa: E402
 from sim.panda_scene import PandaScene  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera  # noqa: E402
-from vision.config import VisionConfig  # noqa: E402
+from vision.config import Intrinsics, VisionConfig  # noqa: E402
 from vision.pipeline import VisionPipeline  # noqa: E402
 
 
@@ -80,12 +83,61 @@ def bench_detection(vision, scene: PandaScene) -> dict:
     }
 
 
-def bench_render(vision, scene: PandaScene) -> dict:
-    out = {}
-    for label, k in (("configured", vision.intrinsics), ("640x480", vision.intrinsics.scaled(640, 480))):
-        camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
-        fps = _rate(lambda i, c=camera: (scene.step(1), c.capture()), seconds=4.0, min_iters=10)
-        out[label] = {"size": f"{k.width}x{k.height}", "fps": round(fps, 1)}
+def _camera(scene: PandaScene, vision: VisionConfig, k: Intrinsics, renderer: str) -> SimRGBDCamera:
+    camera = SimRGBDCamera(
+        scene.client_id, k, vision.sim_pose(), vision.sim.model_copy(update={"renderer": renderer})
+    )
+    if camera.renderer_name != renderer:  # it fell back (and said why): measuring it would mislabel it
+        raise RuntimeError(f"the {renderer} renderer is not available here")
+    return camera
+
+
+def _pybullet_egl_fps(vision: VisionConfig, k: Intrinsics) -> float:
+    """PyBullet's own EGL renderer plugin (OpenGL through Mesa's llvmpipe here), the other candidate.
+
+    The plugin draws only bodies created after it is loaded, so it is loaded as the scene connects.
+    """
+    plugin = importlib.util.find_spec("eglRenderer")
+    if plugin is None or plugin.origin is None:
+        raise RuntimeError("pybullet has no eglRenderer plugin")
+    connect = pb.connect
+
+    def connect_with_egl(*args: object, **kwargs: object) -> int:
+        cid = connect(*args, **kwargs)
+        pb.loadPlugin(plugin.origin, "_eglRendererPlugin", physicsClientId=cid)
+        return cid
+
+    with mock.patch.object(pb, "connect", connect_with_egl):
+        scene = PandaScene(motion="slow", seed=0)
+    try:
+        camera = _camera(scene, vision, k, "tiny")  # the plugin answers getCameraImage itself
+        if not (camera.capture().depth > 0).any():
+            raise RuntimeError("pybullet's EGL plugin rendered nothing")
+        return _rate(lambda i: (scene.step(1), camera.capture()), seconds=4.0, min_iters=10)
+    finally:
+        scene.close()
+
+
+def bench_render(vision: VisionConfig, scene: PandaScene) -> dict:
+    """Each renderer side by side on the same scene in the same run (render, depth conversion, noise),
+    at the configured size and at 640x480; then the whole camera path a frame takes at 640x480 with the
+    configured renderer: render, detection and deprojection."""
+    sizes = {"configured": vision.intrinsics, "640x480": vision.intrinsics.scaled(640, 480)}
+    out: dict = {}
+    for renderer in ("mujoco", "tiny"):
+        out[renderer] = {}
+        for label, k in sizes.items():
+            camera = _camera(scene, vision, k, renderer)
+            fps = _rate(lambda i, c=camera: (scene.step(1), c.capture()), seconds=4.0, min_iters=10)
+            out[renderer][label] = {"size": f"{k.width}x{k.height}", "fps": round(fps, 1)}
+            camera.close()
+    k = sizes["640x480"]
+    out["pybullet_egl"] = {"640x480": {"size": "640x480", "fps": round(_pybullet_egl_fps(vision, k), 1)}}
+    camera = _camera(scene, vision, k, vision.sim.renderer)
+    pipeline = VisionPipeline(vision.model_copy(update={"intrinsics": k}))
+    fps = _rate(lambda i: (scene.step(1), pipeline.locate(camera.capture())), seconds=4.0, min_iters=10)
+    out["render_detect_deproject_640x480"] = {"renderer": vision.sim.renderer, "fps": round(fps, 1)}
+    camera.close()
     return out
 
 

@@ -20,3 +20,13 @@ if [ "$(uname -m)" = x86_64 ]; then
   extras="$extras,realsense"
 fi
 python -m pip install -q -e ".[$extras]"
+# The sim camera renders with MuJoCo through EGL on Mesa's software rasteriser (llvmpipe): Debian's
+# libegl1, libegl-mesa0 and libgl1-mesa-dri. Without them it falls back to PyBullet's TinyRenderer,
+# with a warning, at a fraction of the rate.
+need=()
+for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+done
+if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null
+fi

@@ -152,6 +152,8 @@ def simulated_session(
     """
     k = vision.intrinsics
     k = k.scaled(round(k.width * scale), round(k.height * scale))
-    camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), vision.sim)
+    # The board is a textured quad: PyBullet's TinyRenderer draws textures, the MuJoCo copy does not.
+    tiny = vision.sim.model_copy(update={"renderer": "tiny"})
+    camera = SimRGBDCamera(scene.client_id, k, vision.sim_pose(), tiny)
     poses, seen = collect(scene, camera, CharucoBoard(vision.calibration), views=views, seed=seed)
     return poses, seen, k, pose_to_matrix(vision.sim_pose())

@@ -90,6 +90,9 @@ class SimCameraConfig(Section):
     """
 
     pose: Pose | None = None  # None: the same as the calibrated extrinsics
+    # mujoco: MuJoCo's OpenGL renderer (MUJOCO_GL egl or osmesa); tiny: PyBullet's TinyRenderer, several
+    # times slower, and what the camera falls back to, with a warning, when no OpenGL context opens.
+    renderer: Literal["mujoco", "tiny"] = "mujoco"
     near: float = Field(0.05, gt=0)
     far: float = 4.0
     noise: DepthNoise = DepthNoise()

@@ -6,12 +6,18 @@ import numpy as np
 import pybullet as pb
 import pytest
 
+from sim.panda_scene import TARGET_HALF
 from vision.cameras.sim import SimRGBDCamera, buffer_to_metres, camera_from_config
 from vision.config import DepthNoise, Intrinsics, SimCameraConfig
 from vision.deprojection import project
 from vision.extrinsics import apply, invert, look_at, pose_to_matrix
 
 NO_NOISE = SimCameraConfig(noise=DepthNoise(enabled=False))
+RENDERERS = ("mujoco", "tiny")  # the camera's renderer and its fallback obey the same model
+
+
+def no_noise(renderer: str) -> SimCameraConfig:
+    return NO_NOISE.model_copy(update={"renderer": renderer})
 
 
 @pytest.fixture
@@ -26,8 +32,9 @@ def _sphere(cid: int, radius: float = 0.02) -> int:
     return pb.createMultiBody(0, -1, vis, [0, 0, 0], physicsClientId=cid)
 
 
+@pytest.mark.parametrize("renderer", RENDERERS)
 @pytest.mark.parametrize("size", [(160, 120), (320, 240)])
-def test_sphere_centre_lands_on_projected_pixel(client, size):
+def test_sphere_centre_lands_on_projected_pixel(client, size, renderer):
     """Off-centre principal point, non-square pixels: the blob centroid is where K says.
 
     Each position within 0.35 px (pixel quantisation of a small blob), no systematic bias (< 0.12 px).
@@ -35,7 +42,7 @@ def test_sphere_centre_lands_on_projected_pixel(client, size):
     w, h = size
     k = Intrinsics(w, h, 0.9 * w, 0.85 * w, w / 2 + 7.3, h / 2 - 3.1)
     pose = look_at([1.0, 0.2, 0.3], [0.0, 0.0, 0.0])
-    cam = SimRGBDCamera(client, k, pose, NO_NOISE)
+    cam = SimRGBDCamera(client, k, pose, no_noise(renderer))
     body = _sphere(client, 0.04)
     cam_from_base = invert(pose_to_matrix(pose))
     offsets = []
@@ -51,17 +58,61 @@ def test_sphere_centre_lands_on_projected_pixel(client, size):
     assert np.all(np.abs(offsets.mean(axis=0)) < 0.12), offsets.mean(axis=0)
 
 
-def test_depth_is_metric_z(client):
+@pytest.mark.parametrize("renderer", RENDERERS)
+def test_depth_is_metric_z(client, renderer):
     """A wall facing the camera at 1.5 m reads 1.5 m (z-depth) everywhere, within 2 mm; sky reads 0."""
     k = Intrinsics(160, 120, 140.0, 140.0, 79.5, 59.5)
     vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[0.01, 0.4, 0.3], physicsClientId=client)
     pb.createMultiBody(0, -1, vis, [0.01, 0, 0], physicsClientId=client)  # front face at x = 0.02
-    cam = SimRGBDCamera(client, k, look_at([1.52, 0, 0], [0, 0, 0]), NO_NOISE)
+    cam = SimRGBDCamera(client, k, look_at([1.52, 0, 0], [0, 0, 0]), no_noise(renderer))
     frame = cam.capture()
     centre = frame.depth[45:75, 50:110]
     assert np.all(np.abs(centre - 1.5) < 0.002), (centre.min(), centre.max())
     assert frame.depth[0, 0] == 0.0  # nothing there: no depth, as a real sensor reports
     assert frame.depth.dtype == np.float32 and frame.rgb.shape == (120, 160, 3)
+
+
+@pytest.mark.parametrize("distance", [0.5, 1.0, 1.5])
+def test_depth_at_the_target_matches_the_scene(scene, distance):
+    """The camera's real resolution (640x480, the configured intrinsics, MuJoCo's renderer): the depth
+    at the scene's target, seen from 0.5-1.5 m at an angle, is the target's face within 2 mm."""
+    k = Intrinsics(640, 480, 615.0, 615.0, 321.7, 238.2)
+    target, _ = scene.target_pose()
+    direction = np.array([0.8, -0.3, 0.5]) / np.linalg.norm([0.8, -0.3, 0.5])
+    pose = look_at(target + distance * direction, target)
+    cam = SimRGBDCamera(scene.client_id, k, pose, NO_NOISE)
+    assert cam.renderer_name == "mujoco"
+    frame = cam.capture()
+    assert frame.rgb.shape == (480, 640, 3) and frame.depth.shape == (480, 640)
+    assert frame.intrinsics == k
+    cam_to_base = pose_to_matrix(pose)
+    u, v = project(k, apply(invert(cam_to_base), target))
+    for du, dv in ((0, 0), (-3, 2), (4, -3)):  # pixels on the target's image near its centre
+        px, py = round(u) + du, round(v) + dv
+        ray = cam_to_base[:3, :3] @ np.array([(px - k.cx) / k.fx, (py - k.cy) / k.fy, 1.0])
+        t = _ray_hits_cube(cam_to_base[:3, 3], ray, target, TARGET_HALF)  # ray's z component is 1
+        assert abs(frame.depth[py, px] - t) < 0.002, (distance, px, py, frame.depth[py, px], t)
+
+
+def _ray_hits_cube(origin: np.ndarray, ray: np.ndarray, centre: np.ndarray, half: float) -> float:
+    """Where ``origin + t ray`` first meets an axis-aligned cube (slab method); t is then the z-depth
+    because the ray's camera-frame z is 1."""
+    with np.errstate(divide="ignore"):
+        t1, t2 = (centre - half - origin) / ray, (centre + half - origin) / ray
+    near, far = np.minimum(t1, t2).max(), np.maximum(t1, t2).min()
+    assert near <= far, "the ray misses the target"
+    return float(near)
+
+
+def test_fallback_renderer_warns(client, monkeypatch, caplog):
+    """No OpenGL context (here: MUJOCO_GL names a platform this process cannot use): the camera says so
+    and renders with TinyRenderer."""
+    monkeypatch.setenv("MUJOCO_GL", "glx")
+    with caplog.at_level("WARNING", logger="vision.cameras.sim"):
+        cam = SimRGBDCamera(client, Intrinsics(80, 60, 70.0, 70.0, 39.5, 29.5), look_at([1, 0, 0], [0, 0, 0]))
+    assert cam.renderer_name == "tiny"
+    assert "TinyRenderer" in caplog.text and "MUJOCO_GL=glx" in caplog.text
+    assert cam.capture().rgb.shape == (60, 80, 3)
 
 
 def test_buffer_conversion_round_trip():

@@ -1,5 +1,7 @@
 """Simulated RGB-D camera: renders the PyBullet scene of a given client with a pinhole model.
 
+The picture comes from MuJoCo's renderer (``vision.cameras.mujoco_render``) by default; PyBullet's
+TinyRenderer is the fallback when no OpenGL context can be opened, and what this module's matrices are for.
 The physics owner (the robot interface's mock) calls ``SimRGBDCamera(client_id, ...).capture()`` on
 its own client and publishes the frame; the vision pipeline never touches PyBullet. The projection
 matrix is built from the intrinsics (including an off-centre principal point) and the view matrix from
@@ -9,23 +11,27 @@ out of PyBullet as a non-linear OpenGL buffer in [0, 1]; it is converted to metr
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
 import pybullet as pb
 
+from vision.cameras.mujoco_render import MujocoRenderer, RendererUnavailable
 from vision.cameras.protocol import CameraError, Frame
 from vision.config import DepthNoise, Intrinsics, Pose, SimCameraConfig, VisionConfig
 from vision.extrinsics import pose_to_matrix
+
+log = logging.getLogger(__name__)
 
 # OpenCV camera axes (x right, y down, z forward) to OpenGL camera axes (x right, y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-# Where each renderer samples pixel (u, v), as offsets (ax, ay) in x_ndc = 2 (u + ax) / W - 1 and
-# y_ndc = 1 - 2 (v + ay) / H. OpenGL samples pixel centres (0.5, 0.5). PyBullet's TinyRenderer was
+# Where TinyRenderer samples pixel (u, v), as offsets (ax, ay) in x_ndc = 2 (u + ax) / W - 1 and
+# y_ndc = 1 - 2 (v + ay) / H. OpenGL samples pixel centres (0.5, 0.5); PyBullet's TinyRenderer was
 # measured (tests/vision/test_sim_camera.py) to sample at (0, 1): its rows are flipped after rasterising.
-PIXEL_SAMPLE_OFFSET = {pb.ER_TINY_RENDERER: (0.0, 1.0), pb.ER_BULLET_HARDWARE_OPENGL: (0.5, 0.5)}
+TINY_PIXEL_OFFSET = (0.0, 1.0)
 
 
 def projection_matrix(
@@ -33,7 +39,7 @@ def projection_matrix(
 ) -> list[float]:
     """OpenGL projection (column-major, 16 floats) that renders pixel (u, v) where OpenCV's model puts it.
 
-    ``offset`` is the renderer's pixel sampling offset (see ``PIXEL_SAMPLE_OFFSET``).
+    ``offset`` is the renderer's pixel sampling offset (see ``TINY_PIXEL_OFFSET``).
     """
     w, h = k.width, k.height
     ax, ay = offset
@@ -80,9 +86,10 @@ def add_depth_noise(depth: np.ndarray, noise: DepthNoise, rng: np.random.Generat
 
 
 class SimRGBDCamera:
-    """Renders registered RGB-D frames of PyBullet client ``client_id`` (TinyRenderer, works headless).
+    """Renders registered RGB-D frames of PyBullet client ``client_id`` (headless).
 
-    ``pose`` is the camera-to-base transform the camera is rendered from (the ground truth).
+    ``pose`` is the camera-to-base transform the camera is rendered from (the ground truth). With the
+    MuJoCo renderer the bodies in the client when the camera is made are the ones drawn.
     """
 
     def __init__(
@@ -91,15 +98,30 @@ class SimRGBDCamera:
         intrinsics: Intrinsics,
         pose: Pose,
         config: SimCameraConfig | None = None,
-        renderer: int = pb.ER_TINY_RENDERER,
     ) -> None:
         self.client_id = int(client_id)
         self._intrinsics = intrinsics
         self.config = config or SimCameraConfig()
-        self.renderer = renderer
         self._rng = np.random.default_rng(self.config.seed)
         self._seq = 0
+        self._mujoco = self._open_mujoco() if self.config.renderer == "mujoco" else None
         self.set_pose(pose)
+
+    def _open_mujoco(self) -> MujocoRenderer | None:
+        try:
+            return MujocoRenderer(self.client_id, self._intrinsics, self.config.near, self.config.far)
+        except RendererUnavailable as exc:
+            log.warning(
+                "sim camera: %s; rendering with PyBullet's TinyRenderer instead (several times slower: "
+                "install Debian's libegl1 and libegl-mesa0, or set MUJOCO_GL=osmesa with libosmesa6)",
+                exc,
+            )
+            return None
+
+    @property
+    def renderer_name(self) -> str:
+        """Which renderer draws the frames: ``mujoco`` or ``tiny``."""
+        return "mujoco" if self._mujoco is not None else "tiny"
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -109,22 +131,26 @@ class SimRGBDCamera:
         self.pose = pose
         self.camera_to_base = pose_to_matrix(pose)
         self._view = view_matrix(self.camera_to_base)
-        self._proj = projection_matrix(
-            self._intrinsics, self.config.near, self.config.far, PIXEL_SAMPLE_OFFSET[self.renderer]
-        )
+        self._proj = projection_matrix(self._intrinsics, self.config.near, self.config.far, TINY_PIXEL_OFFSET)
 
     def capture(self) -> Frame:
         """Render now; ``Frame.stamp`` is the wall-clock time just before rendering."""
         if not pb.isConnected(self.client_id):
             raise CameraError(f"sim camera: pybullet client {self.client_id} is not connected")
-        k = self._intrinsics
         stamp = time.time()
+        rgb, depth = self._mujoco.render(self.camera_to_base) if self._mujoco else self._render_tiny()
+        depth = add_depth_noise(depth, self.config.noise, self._rng)
+        self._seq += 1
+        return Frame(rgb=rgb, depth=depth, intrinsics=self._intrinsics, stamp=stamp, seq=self._seq)
+
+    def _render_tiny(self) -> tuple[np.ndarray, np.ndarray]:
+        k = self._intrinsics
         _, _, rgba, depth_buf, _ = pb.getCameraImage(
             k.width,
             k.height,
             viewMatrix=self._view,
             projectionMatrix=self._proj,
-            renderer=self.renderer,
+            renderer=pb.ER_TINY_RENDERER,
             flags=pb.ER_NO_SEGMENTATION_MASK,
             physicsClientId=self.client_id,
         )
@@ -132,12 +158,13 @@ class SimRGBDCamera:
         depth = buffer_to_metres(
             np.reshape(depth_buf, (k.height, k.width)), self.config.near, self.config.far
         )
-        depth = add_depth_noise(depth, self.config.noise, self._rng)
-        self._seq += 1
-        return Frame(rgb=rgb, depth=depth, intrinsics=k, stamp=stamp, seq=self._seq)
+        return rgb, depth
 
     def close(self) -> None:
-        """Nothing to release: the scene (and its client) belongs to its owner."""
+        """Releases the renderer's OpenGL context; the scene (and its client) belongs to its owner."""
+        if self._mujoco is not None:
+            self._mujoco.close()
+            self._mujoco = None
 
 
 def camera_from_config(client_id: int, vision_config: VisionConfig) -> SimRGBDCamera:
