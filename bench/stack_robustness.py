@@ -73,14 +73,36 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # box clips every sample to the same action, which then carries no gradient: the non-take-off's
 # suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
 # old_agent: the stack's agent before it took reach.yaml's (kernel 0.5 on the relative coordinates, no
-# step or exploration schedules), kept for comparison.
-VARIANTS = ("", "old_agent", "reach_agent", "reach_agent_plan1", "learned_tolerance", "mean_limit", "again")
+# step or exploration schedules), kept for comparison. tiny_camera (issue #34): the shipped stack with
+# the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz.
+VARIANTS = (
+    "",
+    "old_agent",
+    "reach_agent",
+    "reach_agent_plan1",
+    "learned_tolerance",
+    "mean_limit",
+    "again",
+    "tiny_camera",
+)
+TINY_CAMERA = {
+    "rate_hz": 15.0,
+    "intrinsics": {"width": 320, "height": 240, "fx": 307.5, "fy": 307.5, "cx": 159.5, "cy": 119.5},
+}
 ACTION_BOX_M = 0.05  # NS Reach's action bound per axis (robot.max_step_m)
 OLD_AGENT = {"alpha_final": None, "sigma_final": None, "bandwidth": [5.0] * 12 + [0.5] * 3}
 
 
+def apply_variant(variant: str, base: dict[str, Any]) -> None:
+    """Lay ``variant`` over the composed stack config ``base``: its agent, or its camera."""
+    base["learner"]["agent"] = variant_agent(variant, base["learner"]["agent"])
+    if variant == "tiny_camera":
+        base["vision"].update(TINY_CAMERA)
+        base["vision"]["sim"] = {**base["vision"].get("sim", {}), "renderer": "tiny"}
+
+
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if variant in ("", "again"):
+    if variant in ("", "again", "tiny_camera"):
         return agent
     if variant == "old_agent":
         return {**agent, **OLD_AGENT}
@@ -329,11 +351,16 @@ def main() -> int:
     ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS))
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--no-reference", action="store_true", help="skip the in-process runs")
-    ap.add_argument("--variant", default="", choices=VARIANTS, help="the agent (default: configs/sim.yaml's)")
+    ap.add_argument(
+        "--variant",
+        default="",
+        choices=VARIANTS,
+        help="an agent or camera variant (default: configs/sim.yaml as shipped)",
+    )
     args = ap.parse_args()
     os.chdir(ROOT)
     base = compose_stack_yaml(ROOT / "configs/sim.yaml")
-    base["learner"]["agent"] = variant_agent(args.variant, base["learner"]["agent"])
+    apply_variant(args.variant, base)
     prefix = f"{args.variant}-" if args.variant else ""
     OUT.mkdir(parents=True, exist_ok=True)
     todo = [(c, s) for s in args.seeds for c in args.conditions]
