@@ -19,6 +19,7 @@ import threading
 import time
 from pathlib import Path
 
+import mink
 import numpy as np
 import yaml
 
@@ -26,7 +27,7 @@ from bus import messages as m
 from bus.learner_session import LearnerSession
 from bus.transport import Bus, ZenohConfig, open_session
 from robot_io.config import RobotConfig
-from robot_io.ik import DifferentialIK
+from tasks.sim_world import robot_controller
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
@@ -43,23 +44,58 @@ def pct(xs: list[float]) -> dict[str, float]:
     }
 
 
-def bench_ik(n: int) -> dict:
-    cfg = RobotConfig()
-    ik = DifferentialIK(
-        cfg.ik,
-        velocity_scale=cfg.velocity_scale,
-        joint_margin=cfg.joint_margin_rad,
-        home_q=np.array(cfg.home_q),
-    )
-    rng = np.random.default_rng(0)
-    q = np.array(cfg.home_q)
-    times = []
-    for k in range(n):
-        target = rng.uniform([0.3, -0.3, 0.15], [0.65, 0.3, 0.5]) if k % 20 == 0 else target  # noqa: F821
+def _timed(owner: object, name: str, into: list[float]) -> None:
+    """Wrap ``owner.name`` so each call's duration is appended to ``into`` (a bench probe, not a mock)."""
+    call = getattr(owner, name)
+
+    def timed(*args: object, **kwargs: object) -> object:
         t = time.perf_counter()
-        q = ik.solve(q, target, cfg.period).q
-        times.append(time.perf_counter() - t)
-    return pct(times[10:])
+        try:
+            return call(*args, **kwargs)
+        finally:
+            into.append(time.perf_counter() - t)
+
+    setattr(owner, name, timed)
+
+
+def bench_tick(n: int) -> dict:
+    """The control tick's work in-process (PyBullet mock, as robot-io builds it), its parts timed in one
+    run, and beside it one bare mink QP on the same problem (same model, tasks, limits), interleaved tick
+    by tick so both see the same machine. The IK makes ``ik.iterations`` QPs a command."""
+    cfg = RobotConfig()
+    controller = robot_controller(cfg)
+    parts: dict[str, list[float]] = {k: [] for k in ("ik", "command_check", "send", "physics_step", "state")}
+    _timed(controller.ik, "solve", parts["ik"])
+    _timed(controller.kin, "check", parts["command_check"])
+    _timed(controller.backend, "send_joint_command", parts["send"])
+    _timed(controller.backend, "step", parts["physics_step"])
+    _timed(controller, "state", parts["state"])
+    ik = controller.ik
+    bare = mink.Configuration(ik.model)
+    tasks, h = [ik.ee_task, ik.posture_task], cfg.period / cfg.ik.iterations
+    rng = np.random.default_rng(0)
+    tick, bare_qp = [], []
+    controller.reset(seed=0)
+    for k in range(n):
+        if k % 40 == 0:  # a new direction every 2 s, steps up to the action bound
+            direction = rng.uniform(-1, 1, 3) * cfg.max_step_m / np.sqrt(3)
+        t = time.perf_counter()
+        controller.step_action(direction)
+        tick.append(time.perf_counter() - t)
+        bare.update(controller.backend.read_state().q)
+        t = time.perf_counter()
+        mink.solve_ik(bare, tasks, h, cfg.ik.solver, damping=cfg.ik.damping, limits=ik.limits)
+        bare_qp.append(time.perf_counter() - t)
+    controller.close()
+    skip = 10  # first calls warm caches
+    out = {name: pct(times[skip:]) for name, times in parts.items()}
+    out["tick_without_physics"] = pct(
+        [t - s for t, s in zip(tick, parts["physics_step"], strict=True)][skip:]
+    )
+    out["bare_mink_qp"] = pct(bare_qp[skip:])
+    out["ik_qps_per_command"] = cfg.ik.iterations
+    out["ik_p99_over_bare_qp_p99"] = round(out["ik"]["p99_ms"] / out["bare_mink_qp"]["p99_ms"], 2)
+    return out
 
 
 def main() -> None:
@@ -69,8 +105,8 @@ def main() -> None:
     args = ap.parse_args()
     n_rt, n_estop, rate_s = (40, 3, 3.0) if args.quick else (300, 15, 10.0)
 
-    ik = bench_ik(500 if args.quick else 3000)
-    print("IK", ik, flush=True)
+    tick = bench_tick(500 if args.quick else 3000)
+    print("tick", json.dumps(tick), flush=True)
 
     port, name = free_port(), unique_name("bench")
     rate = 20.0
@@ -207,7 +243,7 @@ def main() -> None:
             "cpus": os.cpu_count(),
         },
         "control_rate_hz": rate,
-        "ik_solve": ik,
+        "tick_in_process": tick,
         "chunk_sent_to_first_command_applied": pct(applied),
         "chunk_round_trip_to_status_received": pct(round_trip),
         "state_rate_hz": {
@@ -220,7 +256,8 @@ def main() -> None:
         "notes": (
             "Two processes on loopback Zenoh (peer mode). Chunk latency includes the wait for the next "
             "control tick (period 50 ms), so it is dominated by the control rate; e-stop wakes the "
-            "control thread at once. IK: one mink/daqp solve per control period (2 QP iterations)."
+            "control thread at once. tick_in_process: the tick's parts in one process, without Zenoh; "
+            "bare_mink_qp is one mink/daqp QP on the same problem, timed between ticks."
         ),
     }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

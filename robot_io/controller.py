@@ -224,11 +224,12 @@ class RobotController:
     # -- control thread ------------------------------------------------------------------------------
     def state(self) -> ArmState:
         js = self.backend.read_state()
+        ee_pos, ee_vel = self.kin.ee_position_velocity(js.q, js.dq)
         return ArmState(
             q=js.q,
             dq=js.dq,
-            ee_pos=self.kin.ee_position(js.q),
-            ee_vel=self.kin.ee_velocity(js.q, js.dq),
+            ee_pos=ee_pos,
+            ee_vel=ee_vel,
             mode=self.safety.mode,
             chunk_seq=self.queue.chunk_seq,
             queue_len=len(self.queue),

@@ -20,7 +20,14 @@ class CommandCheck:
 
 
 class Kinematics:
-    """Tool-centre-point kinematics of the Panda arm (7 joints)."""
+    """Tool-centre-point kinematics of the Panda arm (7 joints).
+
+    Placements are remembered for the last few configurations, so one control tick computes each
+    configuration's forward kinematics once whoever asks (the state, the action's anchor, the command
+    check: the anchor's configurations are the previous tick's state and command).
+    """
+
+    REMEMBERED = 4
 
     def __init__(self, description: RobotDescription | None = None) -> None:
         self.description = description or RobotDescription()
@@ -29,19 +36,38 @@ class Kinematics:
         self.ee_id = self.model.getFrameId(self.description.ee_frame)
         limits = self.description.limits
         self.lower, self.upper, self.velocity = limits.lower, limits.upper, limits.velocity
+        self._placements: dict[bytes, pin.SE3] = {}
 
     def fk(self, q: np.ndarray) -> pin.SE3:
-        pin.framesForwardKinematics(self.model, self.data, np.asarray(q, float))
-        return self.data.oMf[self.ee_id].copy()
+        q = np.asarray(q, float)
+        key = q.tobytes()
+        placement = self._placements.get(key)
+        if placement is None:
+            pin.framesForwardKinematics(self.model, self.data, q)
+            placement = self._remember(key, self.data.oMf[self.ee_id].copy())
+        return placement
+
+    def _remember(self, key: bytes, placement: pin.SE3) -> pin.SE3:
+        if len(self._placements) >= self.REMEMBERED:
+            del self._placements[next(iter(self._placements))]  # the oldest
+        self._placements[key] = placement
+        return placement
 
     def ee_position(self, q: np.ndarray) -> np.ndarray:
         return self.fk(q).translation.copy()
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """6x7 Jacobian of the tool centre point, world-aligned (linear rows first)."""
-        return pin.computeFrameJacobian(
-            self.model, self.data, np.asarray(q, float), self.ee_id, pin.LOCAL_WORLD_ALIGNED
-        )
+        q = np.asarray(q, float)
+        J = pin.computeFrameJacobian(self.model, self.data, q, self.ee_id, pin.LOCAL_WORLD_ALIGNED)
+        pin.updateFramePlacement(self.model, self.data, self.ee_id)  # the same pass gives the placement
+        self._remember(q.tobytes(), self.data.oMf[self.ee_id].copy())
+        return J
+
+    def ee_position_velocity(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The tool centre point's position and linear velocity from one kinematics pass."""
+        J = self.jacobian(q)
+        return self.ee_position(q), J[:3] @ np.asarray(dq, float)
 
     def ee_velocity(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         return self.jacobian(q)[:3] @ np.asarray(dq, float)
