@@ -6,7 +6,9 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
+from deploy.config import compose_stack_yaml
 from robot_io.backends.realtime_host import realtime_kernel
 
 
@@ -57,7 +59,9 @@ def test_sim_check_passes_and_bad_config_is_named(tmp_path):
 
 def test_sim_camera_on_a_real_arm_is_refused(tmp_path):
     """The sim camera renders the world the pybullet mock publishes; on a Franka it would see nothing."""
+    cfg = compose_stack_yaml("configs/franka_realsense.yaml")
+    cfg["vision"]["camera"] = "sim"
     bad = tmp_path / "bad.yaml"
-    bad.write_text(open("configs/franka_realsense.yaml").read().replace("camera: realsense", "camera: sim"))
+    bad.write_text(yaml.safe_dump(cfg))
     out = _check(str(bad))
     assert out.returncode == 1 and "only the pybullet backend publishes" in out.stdout
