@@ -20,13 +20,13 @@ Every run executes in plan mode (``execution: plan``, ``learner.plans``): a segm
 
 The runs go through the paper bench's runner (one process per run, resumable ``runs/<name>.json``);
 ``experiments.plans_report`` builds ``summary.json``, ``summary.md`` and the figures from whatever is
-finished. This module is what the worker processes import: it holds the plan only.
+finished; ``experiments.plans_bench`` does both. This module is what the worker processes import: it
+holds the plan only.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from experiments.plan import ENVS, EnvSpec, RunSpec, agent_config, env_kwargs
@@ -284,37 +284,3 @@ def build_plans_plan(
         baseline_settings=base_settings,
         baseline_seeds=list(range(n_base)),
     )
-
-
-def main_plans(
-    quick: bool,
-    out: Path,
-    jobs: int | None,
-    seeds: int | None = None,
-    latency_seeds: int | None = None,
-    steps: int | None = None,
-    settings: list[str] | None = None,
-    report_only: bool = False,
-    progress: bool = True,
-    paper_dir: Path | None = None,
-    executor: str = "local",
-    ray_address: str | None = None,
-    **shape: Any,
-) -> dict[str, Any]:
-    """Run what is unfinished (unless ``report_only``), then report; returns the summary."""
-    import json
-
-    from experiments.plans_report import plans_report
-    from experiments.runner import run_plan
-
-    plan = build_plans_plan(quick, seeds, latency_seeds, steps, settings, **shape)
-    outcome: dict[str, list[str]] = {"skipped": [], "ran": [], "failed": []}
-    if not report_only:
-        outcome = run_plan(  # type: ignore[arg-type]
-            plan, out, jobs, progress, label="plans bench", executor=executor, ray_address=ray_address
-        )
-    summary = plans_report(plan, out, paper_dir)
-    summary["last_invocation"] = {k: len(v) for k, v in outcome.items()}
-    summary["failed_runs"] = outcome["failed"]
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False))
-    return summary

@@ -30,6 +30,8 @@ from experiments.plans import (
     method_label,
     plan_method,
 )
+from experiments.plans_figures import make_plans_figures
+from experiments.plans_tables import write_plans_markdown
 from experiments.report import _count, _h_stats, load_runs, stale_runs
 from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, outcome
 from experiments.verdicts import _overall
@@ -459,9 +461,6 @@ def _baselines_note(plan: PlansPlan) -> str:
 
 def plans_report(plan: PlansPlan, out_dir: Path, paper_dir: Path | None = None) -> dict[str, Any]:
     """Build ``summary.json``, ``summary.md`` and the figures from the finished runs (partial is fine)."""
-    from experiments.plans_figures import make_plans_figures
-    from experiments.plans_tables import write_plans_markdown
-
     runs = load_runs(plan, out_dir)  # type: ignore[arg-type]
     summary = plans_aggregate(plan, runs, paper_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -124,7 +124,7 @@ def _paper(args: argparse.Namespace) -> int:
 
 
 def _plans(args: argparse.Namespace) -> int:
-    from experiments.plans import main_plans
+    from experiments.plans_bench import main_plans
     from experiments.tables import format_verdicts
 
     _check_executor(args)

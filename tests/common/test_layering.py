@@ -7,6 +7,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,6 +51,73 @@ def test_the_check_sees_an_upward_import(tmp_path, monkeypatch):
     path = tmp_path / "mod.py"
     path.write_text("def f():\n    from deploy.config import StackConfig\n    import bus.messages\n")
     assert _imports(path) == {"deploy", "bus"}
+
+
+def _module_graph(root: Path, packages: Iterable[str] = ALLOWED) -> dict[str, set[str]]:
+    """Which of our modules each of our modules imports, at any depth (``from a import b`` counts as
+    ``a.b`` when that is a module)."""
+    files = {}
+    for pkg in packages:
+        for path in (root / pkg).rglob("*.py"):
+            name = ".".join(path.relative_to(root).with_suffix("").parts)
+            files[name.removesuffix(".__init__")] = path
+    graph = {}
+    for name, path in files.items():
+        out = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                out |= {a.name for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                out |= {
+                    f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in files else node.module
+                    for a in node.names
+                }
+        graph[name] = (out & files.keys()) - {name}
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str]:
+    """One import cycle (its modules in order, the first repeated at the end), or [] when there is none."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt) :] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        state[node] = 2
+        path.pop()
+        return []
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return []
+
+
+def test_no_import_cycle_between_modules():
+    """Imports go one way inside a folder too (the plans experiment once looped plans -> plans_report ->
+    plans); lazy imports count."""
+    cycle = _cycle(_module_graph(ROOT))
+    assert not cycle, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_check_sees_an_import_cycle(tmp_path):
+    """A lazy import back to the importer, as ``experiments.plans`` had, is a cycle."""
+    (tmp_path / "experiments").mkdir()
+    (tmp_path / "experiments" / "plans.py").write_text("def main():\n    from experiments.report import r\n")
+    (tmp_path / "experiments" / "report.py").write_text("from experiments import plans\n")
+    assert _cycle(_module_graph(tmp_path, ["experiments"])) == [
+        "experiments.plans",
+        "experiments.report",
+        "experiments.plans",
+    ]
+    (tmp_path / "experiments" / "plans.py").write_text("X = 1\n")
+    assert _cycle(_module_graph(tmp_path, ["experiments"])) == []
 
 
 def test_robot_io_for_a_real_arm_loads_no_simulator():

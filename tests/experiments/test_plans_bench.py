@@ -18,10 +18,10 @@ from experiments.plans import (
     baseline_of,
     build_plans_plan,
     env_kwargs,
-    main_plans,
     method_config,
     method_label,
 )
+from experiments.plans_bench import main_plans
 from experiments.plans_report import front_gap, run_numbers
 from experiments.report import finite_leaves
 
