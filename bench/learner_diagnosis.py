@@ -258,25 +258,18 @@ def _run_metrics(agent, env_key: str, steps: int) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _pendulum_step(th: np.ndarray, w: np.ndarray, u: np.ndarray):
-    from sim.pendulum import NSPendulum as P
-    from sim.pendulum import angle_normalize
-
-    cost = angle_normalize(th) ** 2 + 0.1 * w**2 + 0.001 * u**2
-    accel = 3 * P.g / (2 * P.length) * np.sin(th) + 3.0 / (P.m * P.length**2) * u
-    w = np.clip(w + accel * P.dt, -P.max_speed, P.max_speed)
-    return th + w * P.dt, w, -cost
-
-
 def _observe(th: np.ndarray, w: np.ndarray, b: float, rng: np.random.Generator) -> np.ndarray:
-    obs = np.stack([np.cos(th), np.sin(th), w], 1)
+    """The env's observation of each state with its uniform noise in ``[-b, b]``, from ``rng``."""
+    from sim.pendulum import NSPendulum
+
+    obs = NSPendulum.observation(th, w)
     noise = rng.uniform(-b, b, obs.shape) if b > 0 else 0.0  # drawn always: streams stay aligned
     return obs + noise if b > 0 else obs
 
 
 def _batch_f(agent, obs: np.ndarray) -> np.ndarray:
     """``f`` (inside the tanh) of the policy at a batch of raw observations: (n, action_dim)."""
-    s = (obs - agent.normalize.centre) / agent.normalize.scale
+    s = agent.normalize(obs)
     f = agent.policy.f
     if len(f) == 0:
         return np.zeros((len(obs), len(agent.policy.low)))
@@ -289,6 +282,8 @@ def _batch_mean(agent, obs: np.ndarray) -> np.ndarray:
 
 def _returns(agent, th, w, first_u, b, horizon, seed) -> np.ndarray:
     """Discounted returns from true states ``(th, w)``: ``first_u`` first, then the agent's policy."""
+    from sim.pendulum import NSPendulum
+
     rng = np.random.default_rng(seed)
     sig, lo, hi = agent.policy.sigma[0], agent.policy.low[0], agent.policy.high[0]
     gamma = agent.config.gamma
@@ -297,39 +292,15 @@ def _returns(agent, th, w, first_u, b, horizon, seed) -> np.ndarray:
         obs = _observe(th, w, b, rng)
         eps = rng.standard_normal(len(th))
         u = np.clip(first_u if t == 0 else _batch_mean(agent, obs)[:, 0] + sig * eps, lo, hi)
-        th, w, r = _pendulum_step(th, w, u)
+        th, w, r = NSPendulum.transition(th, w, u)
         g += disc * r
         disc *= gamma
     return g
 
 
-def _learner_gradient(agent, s, raw, r, s_next) -> tuple[float, np.ndarray, float]:
-    """(advantage, per-sample gradient before clipping, state-only part) the learner would form for one
-    transition, with its critic frozen (no fit): the same formulas as ``AdaptiveH._gradient``."""
-    cfg, pol, critic = agent.config, agent.policy, agent.critic
-    score = pol.score(s, raw)
-    sigma = pol.sigma / pol.half_range
-    mean = np.tanh(pol.f(s))
-    if cfg.critic == "q":
-        a = (np.clip(raw, pol.low, pol.high) - pol.centre) / pol.half_range
-        v = critic.value(s, mean, sigma)
-        adv = critic.q_value(s, a) - v
-        if cfg.policy_gradient == "expected":
-            return adv, agent.grad_scale * critic.expected_gradient(s, mean, sigma), 0.0
-        return adv, agent.grad_scale * adv * score, 0.0
-    if cfg.critic == "compatible":
-        adv = critic.advantage(s, score)
-        if cfg.policy_gradient == "expected":
-            return adv, agent.grad_scale * critic.expected_gradient(s, None, sigma), 0.0
-        return adv, agent.grad_scale * adv * score, 0.0
-    base = critic.residual(s)
-    td = r + cfg.gamma * critic.value(s_next) - critic.value(s)
-    return td - base, agent.grad_scale * (td - base) * score, td
-
-
 def _batch_value(agent, obs: np.ndarray) -> np.ndarray:
     """The value critic's ``V̂`` at a batch of raw observations."""
-    s = (obs - agent.normalize.centre) / agent.normalize.scale
+    s = agent.normalize(obs)
     c = agent.critic
     return c.state_kernel(s, c.dictionary.centers) @ c.theta if len(c) else np.zeros(len(obs))
 
@@ -339,6 +310,8 @@ def gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, n_act, seed) -> dict:
     actions per state, each followed by the frozen policy; ``Â^λ = Σ_k (γλ)^k δ_{t+k}`` with the
     critic's ``δ``. Reports the sign agreement / corr of ``E_a[c Â^λ score]`` with the true ``dQ/da`` and
     the per-sample SNR, the quantities the λ trade-off is about (λ = 0 is the TD error)."""
+    from sim.pendulum import NSPendulum
+
     gamma, sig = agent.config.gamma, agent.policy.sigma[0]
     lo, hi = agent.policy.low[0], agent.policy.high[0]
     horizon = int(min(300, np.ceil(np.log(0.01) / np.log(gamma * 0.95))))
@@ -350,7 +323,7 @@ def gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, n_act, seed) -> dict:
     deltas = np.zeros((horizon, n * n_act))
     u = np.clip(a, lo, hi)
     for t in range(horizon):
-        th, w, r = _pendulum_step(th, w, u)
+        th, w, r = NSPendulum.transition(th, w, u)
         obs = _observe(th, w, b, rng)
         v = _batch_value(agent, obs)
         deltas[t] = r + gamma * v - v_prev
@@ -373,7 +346,10 @@ def gae_probe(agent, th0, w0, obs0, mu0, d_true, d_sig, b, n_act, seed) -> dict:
 
 
 def rollout_probe(agent, states: np.ndarray, b: float, n_states: int, reps: int, seed: int) -> dict:
-    """The rollout measurements of the module docstring at ``n_states`` of ``states`` (rows th, θ̇)."""
+    """The rollout measurements of the module docstring at ``n_states`` of ``states`` (rows th, θ̇); the
+    learner's advantage and gradient are its own (``AdaptiveH.frozen_gradient``), its critic not fitted."""
+    from sim.pendulum import NSPendulum
+
     cfg = agent.config
     horizon = int(min(300, np.ceil(np.log(0.01) / np.log(cfg.gamma))))
     rng = np.random.default_rng(seed)
@@ -397,21 +373,23 @@ def rollout_probe(agent, states: np.ndarray, b: float, n_states: int, reps: int,
     a_hat, d_hat, snr, snr_oracle, resid, noise_share = [], [], [], [], [], []
     for i in range(n):
         s = agent.normalize(obs0[i])
-        th1, w1, r1 = _pendulum_step(th0[i : i + 1], w0[i : i + 1], np.clip(a0[i : i + 1], lo, hi))
+        th1, w1, r1 = NSPendulum.transition(th0[i : i + 1], w0[i : i + 1], np.clip(a0[i : i + 1], lo, hi))
         s1 = agent.normalize(_observe(th1, w1, b, rng)[0])
-        a_hat.append(_learner_gradient(agent, s, a0[i : i + 1], float(r1[0]), s1)[0])
+        a_hat.append(agent.frozen_gradient(s, a0[i : i + 1], float(r1[0]), s1)[1])
         acts = mu0[i] + sig * rng.standard_normal(n_act)
-        th1, w1, r1 = _pendulum_step(np.full(n_act, th0[i]), np.full(n_act, w0[i]), np.clip(acts, lo, hi))
+        th1, w1, r1 = NSPendulum.transition(
+            np.full(n_act, th0[i]), np.full(n_act, w0[i]), np.clip(acts, lo, hi)
+        )
         o1, o1_clean = _observe(th1, w1, b, rng), _observe(th1, w1, 0.0, rng)
         rows = [
-            _learner_gradient(agent, s, acts[j : j + 1], float(r1[j]), agent.normalize(o1[j]))
+            agent.frozen_gradient(s, acts[j : j + 1], float(r1[j]), agent.normalize(o1[j]))
             for j in range(n_act)
         ]
-        g = np.array([row[1][0] for row in rows])
+        g = np.array([row[0][0] for row in rows])
         d_hat.append(g.mean())
         snr.append(abs(g.mean()) / (g.std() + 1e-12))
-        if cfg.critic == "value":
-            td = np.array([row[2] for row in rows])
+        if cfg.critic == "value":  # the TD error itself: the advantage with the state baseline put back
+            td = np.array([row[1] for row in rows]) + agent.critic.residual(s)
             score = np.array([agent.policy.score(s, acts[j : j + 1])[0] for j in range(n_act)])
             g_oracle = agent.grad_scale * (td - td.mean()) * score
             snr_oracle.append(abs(g_oracle.mean()) / (g_oracle.std() + 1e-12))
@@ -725,7 +703,8 @@ def _names(csv: str) -> list[str]:
     return [v for v in csv.split(",") if v]
 
 
-def _pool_map(fn, tasks: list, jobs: int) -> list:
+def pool_map(fn: Callable[[Any], Any], tasks: list, jobs: int) -> list:
+    """``fn`` over ``tasks`` in ``jobs`` fresh one-thread processes at a time (also pendulum_optimum's)."""
     if jobs <= 1:
         return [fn(t) for t in tasks]
     with get_context("spawn").Pool(jobs, maxtasksperchild=1, initializer=_one_thread) as pool:
@@ -764,7 +743,7 @@ def _pendulum_variants_summary(runs: list[dict]) -> dict:
     return out
 
 
-def _paper_finals(paper_summary: Path, setting: str, method: str) -> dict[int, float]:
+def paper_finals(paper_summary: Path, setting: str, method: str) -> dict[int, float]:
     """``method``'s final return per seed on ``setting`` in the paper bench's summary."""
     if not paper_summary.is_file():
         return {}
@@ -782,7 +761,7 @@ def _reach_summary(reach: list[dict], paper_summary: Path) -> dict:
     first reported), and paired per seed from the scheduled learner and from TD3 in the paper bench."""
     from experiments.stats import bootstrap_diff, bootstrap_paired_diff
 
-    td3, out = _paper_finals(paper_summary, "reach_slow", "td3"), {}
+    td3, out = paper_finals(paper_summary, "reach_slow", "td3"), {}
     unscheduled, scheduled = _finals(reach, "unscheduled"), _finals(reach, "scheduled")
     for variant in REACH_VARIANTS:
         rs = [r for r in reach if r["variant"] == variant]
@@ -810,8 +789,8 @@ def _reach_baselines_summary(runs: list[dict], paper_summary: Path) -> dict:
     noise) and against AdaptiveH there: what the lever NS Reach's std was tuned with does for TD3."""
     from experiments.stats import bootstrap_paired_diff
 
-    td3 = _paper_finals(paper_summary, "reach_slow", "td3")
-    ours = _paper_finals(paper_summary, "reach_slow", "adaptiveh")
+    td3 = paper_finals(paper_summary, "reach_slow", "td3")
+    ours = paper_finals(paper_summary, "reach_slow", "adaptiveh")
     out = {}
     for v in dict.fromkeys(r["variant"] for r in runs):
         finals = _finals(runs, v)
@@ -984,7 +963,7 @@ def main() -> None:
             for v in variants
             for s in range(a.probe_seeds)
         ]
-        out["probe"] = _pool_map(probe_run, tasks, a.jobs)
+        out["probe"] = pool_map(probe_run, tasks, a.jobs)
 
     def variant_runs(part: str, names: list[str], task: Callable[[str, int], tuple]) -> list[dict]:
         """Each named variant's ``plain_run`` over the seeds; with --merge, every other (variant, seed)'s
@@ -992,7 +971,7 @@ def main() -> None:
         seeds = range(a.first_seed, a.first_seed + a.seeds)
         tasks = [task(v, s) for v in names for s in seeds]
         kept = [r for r in old.get(part, []) if not (r["variant"] in names and r["seed"] in seeds)]
-        return kept + _pool_map(plain_run, tasks, a.jobs)
+        return kept + pool_map(plain_run, tasks, a.jobs)
 
     reach_steps = ENVS["reach_slow"].steps
     if "performance" in parts:
@@ -1027,10 +1006,10 @@ def main() -> None:
             lambda v, s: ("pendulum_slow", v, PENDULUM_VARIANTS[v], s, a.steps),
         )
     if "noise" in parts:
-        out["noise"] = _pool_map(noise_run, [(s, a.steps, a.eval_episodes) for s in range(a.seeds)], a.jobs)
+        out["noise"] = pool_map(noise_run, [(s, a.steps, a.eval_episodes) for s in range(a.seeds)], a.jobs)
     if "env_cost" in parts:
         tasks = [(e, s) for e in ENVS for s in range(a.check_seeds)]
-        out["env_cost"] = _pool_map(env_cost_run, tasks, a.jobs)
+        out["env_cost"] = pool_map(env_cost_run, tasks, a.jobs)
     if "checks" in parts:
         envs = [e for e in a.check_envs.split(",") if e]
         cvs = a.check_variants.split(",")
@@ -1040,7 +1019,7 @@ def main() -> None:
             for v in cvs
             for s in range(a.check_seeds)
         ]
-        out["checks"] = _pool_map(plain_run, tasks, a.jobs)
+        out["checks"] = pool_map(plain_run, tasks, a.jobs)
     out["summary"] = summarize(out, Path(a.paper_summary).resolve())
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(out, indent=1, default=float))

@@ -35,15 +35,19 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-import learner_diagnosis as diagnosis  # noqa: E402
+from learner_diagnosis import paper_finals, pool_map  # noqa: E402  (bench/, this script's folder)
 
+from experiments.execute import make_env  # noqa: E402
+from experiments.metrics import run_metrics  # noqa: E402
+from experiments.plan import ENVS, agent_config, env_kwargs  # noqa: E402
 from sim.pendulum import NSPendulum, angle_normalize  # noqa: E402
 
 EPISODE = NSPendulum.max_steps
-PAPER_SUMMARY = diagnosis.ROOT / "results" / "paper" / "summary.json"
+SETTING = ENVS["pendulum_slow"]  # the paper bench's NS Pendulum: its worlds, budget and threshold
+PAPER_SUMMARY = ROOT / "results" / "paper" / "summary.json"
 # The learner's variants measured with and without the oracle: the step as configured and doubled (the
 # step the oracle-fed actor did best with; on the learner's own critic its gain was chance, README).
 VARIANTS: dict[str, dict] = {"configured": {}, "alpha_0.04": {"alpha": 0.04}}
@@ -58,7 +62,7 @@ class PendulumGrid:
         self.speeds = np.linspace(-NSPendulum.max_speed, NSPendulum.max_speed, n_speed)
         self.torques = np.linspace(-NSPendulum.max_torque, NSPendulum.max_torque, n_actions)
         th, w, u = np.meshgrid(self.thetas, self.speeds, self.torques, indexing="ij")
-        th2, w2, self.reward = diagnosis._pendulum_step(th, w, u)
+        th2, w2, self.reward = NSPendulum.transition(th, w, u)
         self.successor = self.weights(th2, w2)
 
     def weights(self, th: np.ndarray, w: np.ndarray) -> tuple:
@@ -104,7 +108,7 @@ class PendulumGrid:
         """The policy ``argmax_u r(θ, θ̇, u) + γ value_of_next(θ', θ̇')`` over the grid's torques."""
 
         def act(th: float, w: float) -> float:
-            th2, w2, r = diagnosis._pendulum_step(
+            th2, w2, r = NSPendulum.transition(
                 np.full(len(self.torques), th), np.full(len(self.torques), w), self.torques
             )
             return float(self.torques[np.argmax(r + gamma * value_of_next(th2, w2))])
@@ -119,7 +123,7 @@ def episode_returns(policy, starts: np.ndarray) -> np.ndarray:
         th, w, total = np.array([th0]), np.array([w0]), 0.0
         for _ in range(EPISODE):
             u = np.clip(np.array([policy(float(th[0]), float(w[0]))]), -2.0, 2.0)
-            th, w, r = diagnosis._pendulum_step(th, w, u)
+            th, w, r = NSPendulum.transition(th, w, u)
             total += float(r[0])
         out.append(total)
     return np.asarray(out)
@@ -177,13 +181,18 @@ class OptimalAdvantage:
 def _learn(seed: int, steps: int, overrides: dict, oracle_value=None):
     """The configured learner (plus ``overrides``) after ``steps`` on seed ``seed``'s world, and its final
     return as the paper bench scores it; ``oracle_value``: the actor learns from the optimal advantage."""
-    cfg = diagnosis._variant_config("pendulum_slow", overrides)
-    env, agent = diagnosis._build("pendulum_slow", seed, cfg, wrap=TrueStateProbe)
+    from learner.registry import make_agent  # the learners load torch: only in the process that runs
+
+    cfg = {**agent_config(SETTING, "adaptiveh"), **overrides}
+    env = TrueStateProbe(make_env(SETTING, env_kwargs(SETTING, seed)))
+    agent = make_agent("adaptiveh", env, seed, cfg)
     if oracle_value is not None:
         agent.critic = OptimalAdvantage(agent.critic, env, oracle_value, cfg["gamma"])
     agent.learn(steps)
     env.close()
-    return agent, cfg, diagnosis._run_metrics(agent, "pendulum_slow", steps)["final_return"]
+    eps = agent.log.episodes
+    metrics = run_metrics([e.global_step for e in eps], [e.ret for e in eps], steps, SETTING.threshold)
+    return agent, cfg, metrics["final_return"]
 
 
 def learner_run(args: tuple) -> dict:
@@ -198,7 +207,7 @@ def learner_run(args: tuple) -> dict:
     agent, cfg, final_return = _learn(seed, steps, overrides, oracle_value)
 
     def obs(th: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return diagnosis._observe(np.atleast_1d(th), np.atleast_1d(w), 0.0, None)  # noise-free
+        return NSPendulum.observation(np.atleast_1d(th), np.atleast_1d(w))  # noise-free
 
     def mean_action(th: float, w: float) -> float:
         return float(agent.predict(obs(th, w)[0])[0])
@@ -227,7 +236,7 @@ def _oracle_summary(runs: list[dict]) -> dict:
     """Per variant: the learned and the oracle-fed actor's final returns, paired per seed, and against SAC."""
     from experiments.stats import bootstrap_mean, bootstrap_paired_diff
 
-    sac = diagnosis._paper_finals(PAPER_SUMMARY, "pendulum_slow", "sac") or None
+    sac = paper_finals(PAPER_SUMMARY, "pendulum_slow", "sac") or None
     out = {}
     for name in VARIANTS:
         mine = [r for r in runs if r["variant"] == name]
@@ -262,8 +271,8 @@ def main() -> None:
     gammas = [float(g) for g in a.gammas.split(",")]
     tasks = [(g, shape, a.starts) for g in gammas]
     print(f"value iteration at gamma {gammas}, then the learner on {a.seeds} seeds ...", flush=True)
-    optima = diagnosis._pool_map(optimum_run, tasks, a.jobs)
-    learner_gamma = diagnosis._variant_config("pendulum_slow", {})["gamma"]
+    optima = pool_map(optimum_run, tasks, a.jobs)
+    learner_gamma = agent_config(SETTING, "adaptiveh")["gamma"]
     oracle_v, _ = PendulumGrid(*shape).value_iteration(learner_gamma)
     runs = [
         (s, a.steps, shape, a.starts, name, oracle_v if oracle else None)
@@ -271,7 +280,7 @@ def main() -> None:
         for oracle in (False, True)
         for s in range(a.seeds)
     ]
-    learned = diagnosis._pool_map(learner_run, runs, a.jobs)
+    learned = pool_map(learner_run, runs, a.jobs)
     from experiments.execute import code_version
     from experiments.stats import bootstrap_mean
 

@@ -418,22 +418,45 @@ class AdaptiveH:
     ) -> tuple[np.ndarray, float]:
         """Fit the critic on one transition; return the per-step functional gradient ``g_t`` (f's units)
         and the advantage it was formed from."""
-        cfg = self.config
         policy = self.policy
         sigma = policy.sigma / policy.half_range  # the policy's std in scaled action units
-        if cfg.critic != "q":
+        if self.config.critic != "q":
             advantage = self.critic.update(s, reward, s_next, terminated, score)
-            if cfg.policy_gradient == "expected":
-                return self.grad_scale * self.critic.expected_gradient(s, None, sigma), advantage
-            return self.grad_scale * advantage * score, advantage
+            return self._policy_gradient(s, score, advantage, None, sigma), advantage
         action = (np.clip(raw, policy.low, policy.high) - policy.centre) / policy.half_range
         mean = np.tanh(policy.f(s))
         next_mean = np.tanh(policy.f(s_next))
         advantage = self.critic.update(s, reward, s_next, terminated, None, action, mean, next_mean, sigma)
-        if cfg.policy_gradient == "expected":
-            # D(s) = ∂/∂μ̃ E Q̂ in scaled units is the paper's Σ⁻¹-weighted action integral in f's units.
-            return self.grad_scale * self.critic.expected_gradient(s, mean, sigma), advantage
-        return self.grad_scale * advantage * score, advantage
+        return self._policy_gradient(s, score, advantage, mean, sigma), advantage
+
+    def frozen_gradient(
+        self, s: np.ndarray, raw: np.ndarray, reward: float, s_next: np.ndarray, terminated: bool = False
+    ) -> tuple[np.ndarray, float]:
+        """(``g_t``, advantage) as :meth:`_gradient` forms them, from the critic as it stands (no fit): what
+        a probe of the learner's signal measures (bench/learner_diagnosis.py)."""
+        policy, critic = self.policy, self.critic
+        score = policy.score(s, raw)
+        sigma = policy.sigma / policy.half_range
+        mean = None
+        if self.config.critic == "value":
+            advantage = critic.td_error(s, reward, s_next, terminated)
+        elif self.config.critic == "compatible":
+            advantage = critic.advantage(s, score)
+        else:
+            action = (np.clip(raw, policy.low, policy.high) - policy.centre) / policy.half_range
+            mean = np.tanh(policy.f(s))
+            advantage = critic.q_value(s, action) - critic.value(s, mean, sigma)
+        return self._policy_gradient(s, score, advantage, mean, sigma), advantage
+
+    def _policy_gradient(
+        self, s: np.ndarray, score: np.ndarray, advantage: float, mean: np.ndarray | None, sigma: np.ndarray
+    ) -> np.ndarray:
+        """The per-step gradient from the critic's advantage (``sampled``) or its action slope
+        (``expected``: ``D(s) = ∂/∂μ̃ E Q̂`` in scaled units, the paper's Σ⁻¹-weighted action integral in
+        f's units)."""
+        if self.config.policy_gradient == "expected":
+            return self.grad_scale * self.critic.expected_gradient(s, mean, sigma)
+        return self.grad_scale * advantage * score
 
     def _replay_update(self) -> None:
         """Apply ``replay_batch`` past transitions' gradients again (learner/replay.py). No weight decay:

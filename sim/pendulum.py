@@ -61,9 +61,25 @@ class NSPendulum(gym.Env):
         self.steps = 0
         self._history: deque[np.ndarray] = deque(maxlen=obs_delay + 1)
 
+    @classmethod
+    def transition(
+        cls, th: np.ndarray | float, thdot: np.ndarray | float, u: np.ndarray | float
+    ) -> tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float]:
+        """(θ', θ̇', reward) of the true dynamics, on floats or arrays of states (``u`` inside the torque
+        box): one source for the env, its plan model and the benches' batched rollouts."""
+        cost = angle_normalize(th) ** 2 + 0.1 * thdot**2 + 0.001 * u**2
+        accel = 3 * cls.g / (2 * cls.length) * np.sin(th) + 3.0 / (cls.m * cls.length**2) * u
+        thdot = np.clip(thdot + accel * cls.dt, -cls.max_speed, cls.max_speed)
+        return th + thdot * cls.dt, thdot, -cost
+
+    @staticmethod
+    def observation(th: np.ndarray | float, thdot: np.ndarray | float) -> np.ndarray:
+        """The noise-free observation ``[cos θ, sin θ, θ̇]`` of a state (one row per state for arrays)."""
+        return np.stack([np.cos(th), np.sin(th), thdot], -1)
+
     def _observe(self) -> np.ndarray:
         th, thdot = self.state
-        clean = np.array([np.cos(th), np.sin(th), thdot])
+        clean = self.observation(th, thdot)
         b = self.noise_schedule.value
         noisy = clean + (self.np_random.uniform(-b, b, 3) if b > 0 else 0.0)
         self._history.append(noisy)
@@ -84,26 +100,19 @@ class NSPendulum(gym.Env):
         c, s, thdot = np.asarray(obs, float)
         th = np.arctan2(s, c)
         u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -self.max_torque, self.max_torque))
-        th, thdot = self._dynamics(th, thdot, u)
-        return np.array([np.cos(th), np.sin(th), thdot])
-
-    def _dynamics(self, th: float, thdot: float, u: float) -> tuple[float, float]:
-        accel = 3 * self.g / (2 * self.length) * np.sin(th) + 3.0 / (self.m * self.length**2) * u
-        newthdot = thdot + accel * self.dt
-        newthdot = float(np.clip(newthdot, -self.max_speed, self.max_speed))
-        return th + newthdot * self.dt, newthdot
+        th, thdot, _ = self.transition(th, thdot, u)
+        return self.observation(th, thdot)
 
     def step(self, action):
         if self.state is None:
             raise RuntimeError("call reset() before step()")
         u = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -self.max_torque, self.max_torque))
-        th, thdot = self.state
-        cost = angle_normalize(th) ** 2 + 0.1 * thdot**2 + 0.001 * u**2
-        self.state = np.array(self._dynamics(th, thdot, u))
+        th, thdot, reward = self.transition(*self.state, u)
+        self.state = np.array([th, thdot])
         self.noise_schedule.advance()
         self.steps += 1
         truncated = self.steps >= self.max_steps
-        return self._observe(), -float(cost), False, truncated, self._info()
+        return self._observe(), float(reward), False, truncated, self._info()
 
     def get_state(self) -> dict:
         return {

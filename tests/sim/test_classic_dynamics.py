@@ -107,6 +107,23 @@ def test_stationary_pendulum_matches_gymnasium_pendulum_step_for_step():
             assert info["noise_bound"] == 0.0
 
 
+def test_pendulum_transition_on_arrays_is_the_envs_step_row_by_row():
+    """The benches' batched rollouts (``NSPendulum.transition``, ``observation``) replay the env exactly."""
+    rng = np.random.default_rng(2)
+    env = NSPendulum(preset="stationary", seed=0)
+    starts = rng.uniform([-np.pi, -8.0], [np.pi, 8.0], (16, 2))
+    torques = rng.uniform(-2.0, 2.0, 16)
+    th, w, r = NSPendulum.transition(starts[:, 0], starts[:, 1], torques)
+    rows = NSPendulum.observation(th, w)
+    assert rows.shape == (16, 3)
+    for i in range(16):
+        env.reset(seed=i)
+        env.state = starts[i].copy()
+        obs, reward, *_ = env.step(torques[i : i + 1])
+        assert (th[i], w[i], r[i]) == (*env.state, reward)
+        np.testing.assert_array_equal(rows[i].astype(np.float32), obs)
+
+
 def test_pendulum_observation_delay_returns_older_observations():
     delayed = NSPendulum(preset="stationary", obs_delay=2)
     clean = NSPendulum(preset="stationary", obs_delay=0)
