@@ -19,15 +19,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
-from robot_io.backends.franky_sim import FrankySimServer
-from robot_io.config import FrankaConfig, RobotConfig
-from tasks.sim_world import robot_controller
+ROOT = Path(__file__).resolve().parents[1]
+# The root first: tests/robot_io, tests/tasks, ... would otherwise shadow our packages as namespace packages.
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' franky-sim launcher
+from franka_simulators import FrankySimServer  # noqa: E402
+
+from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+from tasks.sim_world import robot_controller  # noqa: E402
 
 HOST = "127.0.0.61"
 PERIOD = 0.05

@@ -43,10 +43,11 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' franka-sim launcher
+
+from franka_simulators import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
 
 from robot_io.backends import franky_backend  # noqa: E402
-from robot_io.backends.franky_sim import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
 from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
 
 HOST = "127.0.0.64"

@@ -2,7 +2,7 @@
 # Create .venv-franka-sim with PyPI franka-sim (the FCI emulator: communication constraints, motion limits)
 # and its pins (numpy 1.26.4, mujoco 3.2). Its own virtualenv because the main .venv has numpy 2 and
 # mujoco 4. Idempotent: does nothing when the pinned version is already installed.
-# bench/franka_sim_stream.py starts it through robot_io.backends.franky_sim.FrankaSimServer.
+# bench/franka_sim_stream.py starts it through tests/franka_simulators.py's FrankaSimServer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VERSION=${FRANKA_SIM_VERSION:-1.1.7}

@@ -40,7 +40,7 @@ def test_franka_check_names_model_driver_and_missing_drivers():
 
 @pytest.mark.skipif(importlib.util.find_spec("franky_sim") is None, reason="franky-sim is not installed")
 def test_franka_check_reads_the_arms_version_when_it_answers():
-    from robot_io.backends.franky_sim import FrankySimServer
+    from franka_simulators import FrankySimServer
 
     with FrankySimServer("127.0.0.1"):
         out = _check("configs/franka_sim.yaml", "--probe-arm")  # franky-sim on loopback

@@ -23,8 +23,9 @@ PERIOD = 0.05
 def backend():
     pytest.importorskip("franky")
     pytest.importorskip("franky_sim")
+    from franka_simulators import FrankySimServer
+
     from robot_io.backends.franky_backend import FrankyBackend
-    from robot_io.backends.franky_sim import FrankySimServer
 
     with FrankySimServer(HOST):
         b = FrankyBackend(RobotConfig(backend="franka", model="fr3", franka=FrankaConfig(ip=HOST)))

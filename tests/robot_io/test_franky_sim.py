@@ -24,7 +24,7 @@ from bus.transport import Bus, ZenohConfig, open_session
 
 franky = pytest.importorskip("franky")
 pytest.importorskip("franky_sim")
-from robot_io.backends.franky_sim import FrankySimServer  # noqa: E402
+from franka_simulators import FrankySimServer  # noqa: E402
 
 RATE = 20.0
 PERIOD = 1.0 / RATE

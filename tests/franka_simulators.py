@@ -1,4 +1,5 @@
-"""Simulators speaking libfranka's network protocol, each as a child process on a loopback address.
+"""Simulators speaking libfranka's network protocol, each as a child process on a loopback address: a
+test and bench helper (imported by name, as ``loopback``; the benches put tests/ on ``sys.path``).
 
 Tests and the benches run the simulator in its own process, as the real arm is its own machine: it can
 be killed and restarted (a lost connection), and its Python 1 kHz loop does not share a GIL with
@@ -35,7 +36,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 FRANKA_SIM_VENV = ROOT / ".venv-franka-sim"
 STATS_PREFIX = "FRANKA_SIM_STATS "
 
