@@ -351,6 +351,7 @@ def main() -> int:
     ap.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS))
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--no-reference", action="store_true", help="skip the in-process runs")
+    ap.add_argument("--summarize", action="store_true", help="run nothing: rewrite the summary from the runs")
     ap.add_argument(
         "--variant",
         default="",
@@ -363,8 +364,8 @@ def main() -> int:
     apply_variant(args.variant, base)
     prefix = f"{args.variant}-" if args.variant else ""
     OUT.mkdir(parents=True, exist_ok=True)
-    todo = [(c, s) for s in args.seeds for c in args.conditions]
-    if not args.no_reference:
+    todo = [] if args.summarize else [(c, s) for s in args.seeds for c in args.conditions]
+    if not args.no_reference and not args.summarize:
         todo += [("in_process", s) for s in args.seeds]
     for i, (cond, seed) in enumerate(todo, 1):
         file = OUT / f"{prefix}{cond}_s{seed}_{args.steps}.json"
