@@ -98,7 +98,36 @@ def sim_camera(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def robot_io_tick(data: dict[str, Any]) -> str:
+    """``results/robot_io_bench.json``: the control tick's parts, then the two-process latencies."""
+    tick = data["tick_in_process"]
+    rows = [
+        ("IK, one command (" + str(tick["ik_qps_per_command"]) + " QPs)", tick["ik"]),
+        ("one bare mink QP, same problem, same run", tick["bare_mink_qp"]),
+        ("command check (joint, speed, workspace)", tick["command_check"]),
+        ("state (position and velocity, one kinematics pass)", tick["state"]),
+        ("the tick without the simulator's physics step", tick["tick_without_physics"]),
+        ("PyBullet physics step (the mock's, not the controller's)", tick["physics_step"]),
+        (
+            "chunk sent → first joint command applied (two processes)",
+            data["chunk_sent_to_first_command_applied"],
+        ),
+        ("e-stop sent → safety event received", data["estop_sent_to_event_received"]),
+        ("e-stop sent → joint speed < 0.01 rad/s", data["estop_sent_to_joint_speed_below_0.01"]),
+    ]
+    lines = ["| measure | p50 ms | p99 ms | max ms |", "|---|---|---|---|"]
+    lines += [f"| {name} | {p['p50_ms']:.2f} | {p['p99_ms']:.2f} | {p['max_ms']:.2f} |" for name, p in rows]
+    rate = data["state_rate_hz"]
+    lines += [
+        "",
+        f"State rate {rate['achieved']:.1f} Hz (target {rate['target']:.0f}); gap between states p99 "
+        f"{rate['gap_p99_ms']:.0f} ms. IK p99 / bare QP p99: {tick['ik_p99_over_bare_qp_p99']:.2f}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
 TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
+    "robot_io_tick": ("results/robot_io_bench.json", robot_io_tick),
     "sim_camera": ("results/vision_bench.json", sim_camera),
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
