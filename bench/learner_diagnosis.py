@@ -232,11 +232,11 @@ def _rss_mb() -> float:
 
 def _build(env_key: str, seed: int, cfg: dict[str, Any], algo: str = "adaptiveh", wrap=None):
     """The paper bench's env for ``seed`` (inside ``wrap`` when given, e.g. a probe) and the agent on it."""
-    from experiments.execute import make_env
+    from experiments.envs import make_env
     from experiments.plan import ENVS, env_kwargs
     from learner.registry import make_agent
 
-    env = make_env(ENVS[env_key], env_kwargs(ENVS[env_key], seed))
+    env = make_env(ENVS[env_key].env_id, env_kwargs(ENVS[env_key], seed))
     if wrap is not None:
         env = wrap(env)
     return env, make_agent(algo, env, seed, cfg)
@@ -652,12 +652,12 @@ def env_cost_run(args: tuple[str, int]) -> dict:
     import mink
     import pybullet
 
-    from experiments.execute import make_env
+    from experiments.envs import make_env
     from experiments.plan import ENVS, env_kwargs
 
     env_key, seed = args
     spec = ENVS[env_key]
-    env = make_env(spec, env_kwargs(spec, seed))
+    env = make_env(spec.env_id, env_kwargs(spec, seed))
     env.action_space.seed(seed)
     env.reset(seed=seed)
     spent = {"physics_s": 0.0, "ik_s": 0.0}

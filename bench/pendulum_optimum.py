@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from learner_diagnosis import paper_finals, pool_map  # noqa: E402  (bench/, this script's folder)
 
-from experiments.execute import make_env  # noqa: E402
+from experiments.envs import make_env  # noqa: E402
 from experiments.metrics import run_metrics  # noqa: E402
 from experiments.plan import ENVS, agent_config, env_kwargs  # noqa: E402
 from sim.pendulum import NSPendulum, angle_normalize  # noqa: E402
@@ -184,7 +184,7 @@ def _learn(seed: int, steps: int, overrides: dict, oracle_value=None):
     from learner.registry import make_agent  # the learners load torch: only in the process that runs
 
     cfg = {**agent_config(SETTING, "adaptiveh"), **overrides}
-    env = TrueStateProbe(make_env(SETTING, env_kwargs(SETTING, seed)))
+    env = TrueStateProbe(make_env(SETTING.env_id, env_kwargs(SETTING, seed)))
     agent = make_agent("adaptiveh", env, seed, cfg)
     if oracle_value is not None:
         agent.critic = OptimalAdvantage(agent.critic, env, oracle_value, cfg["gamma"])

@@ -216,6 +216,7 @@ def run_in_process(cfg: dict[str, Any], steps: int, tmp: Path) -> dict[str, Any]
         seed=lc["seed"],
         agent=lc.get("agent", {}),
         checkpoint_every=10**9,
+        reseed_episodes=True,  # the stack's world: its actor reseeds the arm's target every episode
     )
     res = train(spec, tmp / "inproc", resume=False, progress=False)
     return {

@@ -19,39 +19,7 @@ from typing import Any
 
 from common.proc_status import status_field
 from experiments.metrics import run_metrics
-from experiments.plan import EnvSpec, RunSpec
-
-
-def make_env(env: EnvSpec, kwargs: dict[str, Any]) -> Any:
-    """The env built from ``kwargs``, with only its first ``reset`` seeded (see ``_SeedOnce``)."""
-    import gymnasium as gym
-
-    import tasks  # noqa: F401  (registers every environment, NS Reach included)
-
-    return _seed_once(gym.make(env.env_id, **kwargs))
-
-
-def _seed_once(env: Any) -> Any:
-    """Pass a ``reset`` seed through only the first time.
-
-    AdaptiveH reseeds every episode (``reset(seed=k)``), SB3 only the first; on NS Reach a seeded reset
-    also redraws the target's motion, so without this the algorithms would face different schedules.
-    Seeding once gives every algorithm at a given seed the same world.
-    """
-    import gymnasium as gym
-
-    class _SeedOnce(gym.Wrapper):
-        def __init__(self, inner: gym.Env) -> None:
-            super().__init__(inner)
-            self._seeded = False
-
-        def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
-            if self._seeded:
-                seed = None
-            self._seeded = self._seeded or seed is not None
-            return self.env.reset(seed=seed, options=options)
-
-    return _SeedOnce(env)
+from experiments.plan import RunSpec
 
 
 def peak_rss_kib() -> float:
@@ -117,10 +85,11 @@ def code_version() -> dict[str, Any]:
 def compute_run(spec: RunSpec, code: dict[str, Any] | None = None, executor: str = "local") -> dict[str, Any]:
     """Learn one spec in this process and return its run record (``code``: the commit it runs, by
     default this tree's; the Ray executor passes the driver's, whose tree it ships to the workers)."""
+    from experiments.envs import make_env
     from learner.registry import make_agent  # the learners load torch: only in the process that runs
 
     env_spec = spec.env_spec
-    env = make_env(env_spec, spec.env_kwargs)
+    env = make_env(env_spec.env_id, spec.env_kwargs)
     agent = make_agent(spec.algo, env, spec.seed, dict(spec.config))
     t0 = time.perf_counter()
     log = agent.learn(spec.steps)

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 import tasks  # noqa: F401  (registers every environment, NS Reach included)
 from common.config import ConfigError, Section, load_yaml, parse
+from experiments import envs
 from learner.protocol import Agent, RunLog
 from learner.registry import Algo, make_agent
 from learner.run_summary import summarize
@@ -34,6 +35,9 @@ class TrainSpec(Section):
     seed: int = 0
     agent: dict[str, Any] = Field(default_factory=dict)
     checkpoint_every: int = Field(default=5_000, ge=1)
+    # Every episode's seeded reset draws a new world (the stack's actor reseeds the arm's each episode);
+    # by default only the first reset's seed counts, as in the benches (experiments.envs).
+    reseed_episodes: bool = False
 
     @field_validator("env")
     @classmethod
@@ -49,10 +53,11 @@ def load_spec(path: str | Path | None, overrides: dict[str, Any]) -> TrainSpec:
     return parse(TrainSpec, data, str(path or "train"))
 
 
-def make_env(spec: TrainSpec) -> gym.Env:
+def make_env(spec: TrainSpec, resumed: bool = False) -> gym.Env:
+    """``spec``'s env from the benches' factory, so a seed is the same world (``resumed``: drawn already)."""
     kwargs = {"seed": spec.seed, **spec.env_kwargs}
     try:
-        return gym.make(spec.env, **kwargs)
+        return envs.make_env(spec.env, kwargs, spec.reseed_episodes, seeded=resumed)
     except TypeError as exc:
         raise ConfigError(f"env_kwargs: {exc}") from None
 
@@ -102,10 +107,11 @@ def train(spec: TrainSpec, out: str | Path, resume: bool = True, progress: bool 
     """Run (or resume) ``spec``; returns the result dict also written to ``out/result.json``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    env = make_env(spec)
-    agent = build_agent(spec, env)
     ckpt = out / "checkpoint.pkl"
-    if resume and ckpt.exists():
+    resumed = resume and ckpt.exists()
+    env = make_env(spec, resumed)
+    agent = build_agent(spec, env)
+    if resumed:
         agent.load(ckpt)
     start_step = agent.log.global_step
     remaining = max(spec.steps - start_step, 0)

@@ -17,7 +17,7 @@ from pendulum_optimum import (  # noqa: E402
     optimum_run,
 )
 
-from experiments.execute import make_env  # noqa: E402
+from experiments.envs import make_env  # noqa: E402
 from experiments.plan import ENVS, env_kwargs  # noqa: E402
 from learner.registry import make_agent  # noqa: E402
 
@@ -50,7 +50,7 @@ def test_the_oracle_hands_the_actor_the_optimal_advantage_on_the_true_states():
     """``OptimalAdvantage`` returns ``r + γV(s') - V(s)`` on the env's true states (not the noisy
     observation the critic sees) and still fits the learner's own critic."""
     spec = ENVS["pendulum_slow"]
-    env = TrueStateProbe(make_env(spec, env_kwargs(spec, 0)))
+    env = TrueStateProbe(make_env(spec.env_id, env_kwargs(spec, 0)))
     agent = make_agent("adaptiveh", env, 0, {})
     critic = agent.critic
     oracle = OptimalAdvantage(critic, env, lambda th, w: 10.0 * th + w, gamma=0.9)
