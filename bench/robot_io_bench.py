@@ -30,6 +30,7 @@ from robot_io.config import RobotConfig
 from tasks.sim_world import robot_controller
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run as a script: our packages before anything of the same name
 sys.path.insert(0, str(ROOT / "tests"))  # free ports and unique names: the tests' helper
 from loopback import free_port, unique_name  # noqa: E402
 

@@ -70,12 +70,6 @@ class DifferentialIK:
             self.description.ee_frame, "body"
         ).rotation()
 
-    def fk(self, q: np.ndarray) -> np.ndarray:
-        self.configuration.update(np.asarray(q, float))
-        return self.configuration.get_transform_frame_to_world(
-            self.description.ee_frame, "body"
-        ).translation()
-
     def solve(self, q: np.ndarray, target: np.ndarray, dt: float) -> IKResult:
         """Joint positions after ``dt`` seconds of limit-respecting motion towards ``target``."""
         target = np.asarray(target, float)

@@ -20,15 +20,6 @@ def project(k: Intrinsics, point: np.ndarray) -> tuple[float, float]:
     return float(k.fx * x / z + k.cx), float(k.fy * y / z + k.cy)
 
 
-def deproject_image(k: Intrinsics, depth: np.ndarray) -> np.ndarray:
-    """Point cloud (H, W, 3) of a depth image; pixels without depth come out at the origin."""
-    u = np.arange(k.width, dtype=np.float32)
-    v = np.arange(k.height, dtype=np.float32)
-    uu, vv = np.meshgrid(u, v)
-    z = depth.astype(np.float32)
-    return np.stack([(uu - k.cx) * z / k.fx, (vv - k.cy) * z / k.fy, z], axis=-1)
-
-
 def surface_to_centre(
     surface_point_cam: np.ndarray, shape: str, size: float, base_from_cam_rotation: np.ndarray
 ) -> np.ndarray:
