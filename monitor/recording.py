@@ -174,8 +174,10 @@ class Recorder:
         if key.startswith(self.exclude) if self.exclude else False:
             return
         data = sample.payload.to_bytes()
-        now = time.time_ns()
         with self._lock:
+            # Read under the lock: a record's log time and its channel sequence then rise together even
+            # when two Zenoh threads deliver the same key at once (under load they did not: issue #35).
+            now = time.time_ns()
             if self._closed:
                 return
             msg, error = self._checked(key, data)

@@ -69,10 +69,14 @@ def stack_robustness(data: dict[str, Any]) -> str:
             f"| {'-' if in_process else _fmt(row['workspace_clips_median'])} "
             f"| {'-' if in_process else age} |"
         )
-    restarts = [(r.get("robot_io_restart") or {}).get("resumed_after_s") for r in data["runs"]]
-    shown = ", ".join(f"{s:.1f}" for s in restarts if s is not None)
+    restarts = [
+        (_row_label(r), (r.get("robot_io_restart") or {}).get("resumed_after_s"))
+        for r in data["runs"]
+        if _row_label(r) in data["table"]
+    ]
+    shown = ", ".join(f"{s:.1f} s ({label})" for label, s in restarts if s is not None)
     if shown:
-        lines += ["", f"robot-io SIGKILLed halfway: learning resumed {shown} s after the kill."]
+        lines += ["", f"robot-io SIGKILLed halfway: learning resumed {shown} after the kill."]
     return "\n".join(lines) + "\n"
 
 
