@@ -394,7 +394,8 @@ def main() -> int:
 def _commit() -> str:
     out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT)
     dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT).stdout
-    return out.stdout.strip() + ("+dirty" if re.search(r"^ ?M ", dirty, re.M) else "")
+    # The bench's own output (results/) does not make the code dirty.
+    return out.stdout.strip() + ("+dirty" if re.search(r"^ ?M (?!results/)", dirty, re.M) else "")
 
 
 if __name__ == "__main__":

@@ -153,7 +153,9 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(stack):
     server.start()
     control(bus, "release")
     probe.wait(lambda: probe.latest().mode == m.RobotState.RUNNING, 20, "running after recovery")
-    assert any("driver_error cleared: operator release" in e.detail for e in probe.events)
+    # The clearing event travels on its own key (no order with the state's): wait for it as well.
+    cleared = "driver_error cleared: operator release"
+    probe.wait(lambda: any(cleared in e.detail for e in list(probe.events)), 5, "the recovery's event")
     reply = probe.learner.reset(2, timeout=30)
     assert reply.ok, reply.detail
     y0 = probe.latest().ee_pos[1]
