@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -153,9 +154,10 @@ def test_figures_are_real_pngs(tiny: tuple[Path, dict]) -> None:
 
 
 def test_finished_runs_are_never_recomputed_and_the_cli_reports_a_partial_plan(
-    tiny: tuple[Path, dict], capsys: pytest.CaptureFixture
+    tiny: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    out, _ = tiny
+    out = tmp_path / "plans"  # this test rewrites the summary and figures: a copy, the others read theirs
+    shutil.copytree(tiny[0], out)
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.json")}
     again = main_plans(False, out, 2, seeds=2, steps=STEPS, settings=SETTING_KEYS, progress=False, **SHAPE)
     assert again["last_invocation"]["ran"] == 0 and again["last_invocation"]["skipped"] == len(stamps)
