@@ -181,6 +181,7 @@ class MujocoRenderer:
         if bodies == self._bodies:
             return
         self._links, meshes = _visual_links(self.client)
+        self._link_frames()
         k = self.intrinsics
         self.model = mujoco.MjModel.from_xml_string(_model_xml(self._links, meshes, k, self.near, self.far))
         self.data = mujoco.MjData(self.model)
@@ -200,17 +201,29 @@ class MujocoRenderer:
             self._scene.flags[flag] = False
         self._bodies = bodies
 
-    def _pose_links(self) -> None:
-        for i, link in enumerate(self._links):
-            if link.link < 0:  # PyBullet gives the base's inertial frame; its visuals hang off the link frame
-                com = pb.getBasePositionAndOrientation(link.body, physicsClientId=self.client)
+    def _link_frames(self) -> None:
+        """What posing needs of the links, fixed while the bodies are: each body's moving links (read in
+        one call a body) and each base's inertial-to-link offset (PyBullet gives a base's inertial frame;
+        its visuals hang off its link frame)."""
+        self._moving: dict[int, list[int]] = {}
+        self._base_offsets: dict[int, tuple] = {}
+        for link in self._links:
+            if link.link < 0:
                 inertial = pb.getDynamicsInfo(link.body, -1, physicsClientId=self.client)[3:5]
-                pos, quat = pb.multiplyTransforms(*com, *pb.invertTransform(*inertial))
+                self._base_offsets[link.body] = pb.invertTransform(*inertial)
             else:
-                state = pb.getLinkState(
-                    link.body, link.link, computeForwardKinematics=True, physicsClientId=self.client
-                )
-                pos, quat = state[4], state[5]
+                self._moving.setdefault(link.body, []).append(link.link)
+
+    def _pose_links(self) -> None:
+        frames: dict[tuple[int, int], tuple] = {}
+        for body, links in self._moving.items():
+            states = pb.getLinkStates(body, links, computeForwardKinematics=True, physicsClientId=self.client)
+            frames.update({(body, j): (state[4], state[5]) for j, state in zip(links, states, strict=True)})
+        for body, offset in self._base_offsets.items():
+            com = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            frames[body, -1] = pb.multiplyTransforms(*com, *offset)
+        for i, link in enumerate(self._links):
+            pos, quat = frames[link.body, link.link]
             self.data.mocap_pos[i] = pos
             self.data.mocap_quat[i] = (quat[3], quat[0], quat[1], quat[2])
         mujoco.mj_kinematics(self.model, self.data)
