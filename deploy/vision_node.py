@@ -139,10 +139,10 @@ class VisionNode(Node):
             from vision.cameras.sim_mirror import MirrorSimCamera
 
             mirror = MirrorSimCamera(self.config, replica_scene())
-            self.bus.subscribe(m.STATE, lambda s: mirror.set_joints(s.q), on_bad=self._on_bad)
+            self.bus.subscribe(m.STATE, lambda s: mirror.set_joints(s.q, s.dq, s.stamp), on_bad=self._on_bad)
             self.bus.subscribe(
                 m.TARGET_TRUTH,
-                lambda t: mirror.set_target(t.position, t.frame_stamp),
+                lambda t: mirror.set_target(t.position, t.frame_stamp, t.velocity),
                 on_bad=self._on_bad,
             )
             return mirror

@@ -41,13 +41,45 @@ def test_replica_renders_the_same_picture_as_the_physics_scene():
         frame = mirror.capture()
     finally:
         mirror.close()
-    assert frame.stamp == stamp  # when the world was observed, not when it was rendered
+    assert stamp <= frame.stamp <= stamp + mirror.max_extrapolation_s  # the instant the picture shows
     differing = np.any(frame.rgb != truth.rgb, axis=2).mean()
     assert differing < 0.002  # the fingers are not mirrored (held open in both): same picture
     both = (frame.depth > 0) & (truth.depth > 0)
     assert np.abs(frame.depth[both] - truth.depth[both]).max() < 1e-3
     red = (truth.rgb[:, :, 0] > 150) & (truth.rgb[:, :, 1] < 60)
     assert red.sum() > 5 and np.array_equal(red, (frame.rgb[:, :, 0] > 150) & (frame.rgb[:, :, 1] < 60))
+
+
+def test_the_frame_shows_the_world_moved_on_to_its_stamp():
+    """A target observed moving is drawn where it is at the frame's instant (its published velocity
+    times the time since it was observed), and no further than ``max_extrapolation_s`` past it: the
+    same picture as a still target placed there."""
+    q = np.array([0.0, -0.4, 0.0, -2.2, 0.0, 1.8, 0.8])
+    p0, v = np.array([0.5, -0.1, 0.3]), np.array([0.0, 0.8, 0.0])
+    mirror = MirrorSimCamera(CONFIG, replica_scene(), max_extrapolation_s=0.1)
+    try:
+        mirror.set_joints(q)
+        observed = time.time() - 0.03
+        mirror.set_target(p0, observed, velocity=v)
+        moving = mirror.capture()
+        shown = moving.stamp - observed
+        assert 0.03 <= shown <= 0.1
+        mirror.set_target(p0 + v * shown, time.time())
+        still = mirror.capture()
+        assert not np.array_equal(moving.rgb, _render_at(mirror, q, p0))  # it did move
+        assert np.any(moving.rgb != still.rgb, axis=2).mean() < 0.002
+        mirror.set_target(p0, time.time() - 0.4, velocity=v)  # observed long ago: moved on 0.1 s only
+        far = mirror.capture()
+        assert far.stamp == pytest.approx(time.time() - 0.3, abs=0.05)
+        assert np.any(far.rgb != _render_at(mirror, q, p0 + v * 0.1), axis=2).mean() < 0.002
+    finally:
+        mirror.close()
+
+
+def _render_at(mirror: MirrorSimCamera, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+    mirror.set_joints(q)
+    mirror.set_target(target, time.time())
+    return mirror.capture().rgb
 
 
 def test_no_world_or_a_stale_world_is_a_camera_error_not_an_old_picture():
