@@ -8,6 +8,7 @@ reconnects after the simulator is back. The test is the learner and the operator
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 import sys
 import time
@@ -39,6 +40,8 @@ class Probe(BusProbe):
         self.states = self.collect(m.STATE)
         self.events = self.collect(m.EVENTS_SAFETY, arrival=False)
         self.truth = self.collect(m.TARGET_TRUTH, arrival=False)
+        self.chunks = itertools.count(1)  # robot-io obeys a session's chunks in rising order only
+        self.episodes = itertools.count(1)
 
     def latest(self) -> m.RobotState:
         with self.lock:
@@ -94,9 +97,24 @@ def stack(tmp_path_factory):
     server.kill()
 
 
+@pytest.fixture
+def arm(stack):
+    """The arm running and homed by this session's reset, whatever the test before left (an e-stop, a
+    fault with the simulator down), so that each test stands alone and in any order."""
+    bus, probe, server = stack
+    if server.proc is None:
+        server.start()
+    if probe.latest().mode in (m.RobotState.ESTOP, m.RobotState.FAULT):
+        control(bus, "release")
+        probe.wait(lambda: probe.latest().mode == m.RobotState.RUNNING, 20, "running after release")
+    reply = probe.learner.reset(next(probe.episodes), timeout=30)
+    assert reply.ok, reply.detail
+    return stack
+
+
 def test_01_reset_homes_the_fr3_and_the_scripted_target_is_published(stack):
     bus, probe, _ = stack
-    reply = probe.learner.reset(1, timeout=30)
+    reply = probe.learner.reset(next(probe.episodes), timeout=30)
     assert reply.ok, reply.detail
     assert reply.state.mode == m.RobotState.RUNNING
     # FR3 home (our FK: 0.307, 0, 0.487); franky-sim's PD sags a few millimetres under gravity.
@@ -105,20 +123,21 @@ def test_01_reset_homes_the_fr3_and_the_scripted_target_is_published(stack):
     assert truth.valid and 0.3 < truth.position[0] < 0.7
 
 
-def test_02_chunks_play_on_the_arm(stack):
-    bus, probe, _ = stack
-    y0 = probe.latest().ee_pos[1]
-    send_chunk(bus, 1, np.tile([0.0, 0.01, 0.0], (20, 1)), probe.learner.id)  # 20 cm at 1 cm per period
+def test_02_chunks_play_on_the_arm(arm):
+    bus, probe, _ = arm
+    y0, events = probe.latest().ee_pos[1], len(probe.kinds())
+    seq = next(probe.chunks)
+    send_chunk(bus, seq, np.tile([0.0, 0.01, 0.0], (20, 1)), probe.learner.id)  # 20 cm at 1 cm per period
     probe.wait(
-        lambda: probe.latest().queue_len == 0 and probe.latest().chunk_seq == 1, 10, "the chunk played"
+        lambda: probe.latest().queue_len == 0 and probe.latest().chunk_seq == seq, 10, "the chunk played"
     )
     probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.04, 5, "the end effector to follow")
-    assert "driver_error" not in probe.kinds()
+    assert "driver_error" not in probe.kinds()[events:]
 
 
-def test_03_estop_holds_the_arm_at_once(stack):
-    bus, probe, _ = stack
-    send_chunk(bus, 2, np.tile([0.0, -0.01, 0.0], (40, 1)), probe.learner.id)
+def test_03_estop_holds_the_arm_at_once(arm):
+    bus, probe, _ = arm
+    send_chunk(bus, next(probe.chunks), np.tile([0.0, -0.01, 0.0], (40, 1)), probe.learner.id)
     probe.wait(lambda: np.linalg.norm(probe.latest().ee_vel) > 0.03, 10, "the arm moving")
     t_stop = time.time()  # the probe stamps arrivals on the wall clock
     control(bus, "estop")
@@ -133,33 +152,37 @@ def test_03_estop_holds_the_arm_at_once(stack):
     probe.wait(lambda: probe.latest().mode == m.RobotState.RUNNING, 5, "running after release")
 
 
-def test_04_lost_connection_holds_in_fault_and_release_recovers(stack):
-    bus, probe, server = stack
+def test_04_lost_connection_holds_in_fault_and_release_recovers(arm):
+    bus, probe, server = arm
+    events = len(probe.events)
     server.kill()
     probe.wait(lambda: probe.latest().mode == m.RobotState.FAULT, 10, "mode FAULT")
     # The event and the state travel on two keys: Zenoh orders each key, not the two together.
     fault = probe.wait(
-        lambda: next((e for e in list(probe.events) if m.label(e, "kind") == "driver_error"), None),
+        lambda: next((e for e in list(probe.events)[events:] if m.label(e, "kind") == "driver_error"), None),
         5,
         "the driver_error event",
     )
     assert "connection_lost" in fault.detail and fault.held
-    send_chunk(bus, 3, np.tile([0.0, 0.01, 0.0], (5, 1)), probe.learner.id)
+    send_chunk(bus, next(probe.chunks), np.tile([0.0, 0.01, 0.0], (5, 1)), probe.learner.id)
     time.sleep(0.3)
     assert probe.latest().mode == m.RobotState.FAULT  # no command reaches a faulted arm
     control(bus, "release")  # the simulator is still down: recovery fails, the arm stays held
-    probe.wait(lambda: any("recovery failed" in e.detail for e in probe.events), 10, "a failed recovery")
+    failed = lambda: any("recovery failed" in e.detail for e in list(probe.events)[events:])  # noqa: E731
+    probe.wait(failed, 10, "a failed recovery")
     assert probe.latest().mode == m.RobotState.FAULT
     server.start()
     control(bus, "release")
     probe.wait(lambda: probe.latest().mode == m.RobotState.RUNNING, 20, "running after recovery")
     # The clearing event travels on its own key (no order with the state's): wait for it as well.
     cleared = "driver_error cleared: operator release"
-    probe.wait(lambda: any(cleared in e.detail for e in list(probe.events)), 5, "the recovery's event")
-    reply = probe.learner.reset(2, timeout=30)
+    probe.wait(
+        lambda: any(cleared in e.detail for e in list(probe.events)[events:]), 5, "the recovery's event"
+    )
+    reply = probe.learner.reset(next(probe.episodes), timeout=30)
     assert reply.ok, reply.detail
     y0 = probe.latest().ee_pos[1]
-    send_chunk(bus, 4, np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
+    send_chunk(bus, next(probe.chunks), np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
     probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.05, 10, "chunks to play again")
 
 
