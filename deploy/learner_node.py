@@ -146,14 +146,12 @@ class LearnerNode(Node):
         self.archive = RunArchive(self.ckpt.parent, self.agent.log)
         self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
         self.retreat_dropped = 0
-        self.retreat_dropped_moving = 0  # plan mode: of the retreat-dropped actions, the non-zero ones
+        self.retreat_dropped_moving = 0  # of the retreat-dropped actions, the non-zero ones
         if self.stream:
             self.feed = TransitionFeed(self.bus)
             self._pub_policy = self.bus.publisher(m.POLICY)
             delay = self.cfg.latency_ms / 1000.0
             self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
-        elif closed_loop:
-            self.env.on_status = self._on_status
         else:
             self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
@@ -169,14 +167,8 @@ class LearnerNode(Node):
             out.append(a)
         return np.asarray(out)
 
-    def _on_status(self, msg: m.ChunkStatus) -> None:
-        """Closed loop: robot-io's status says when a retreat's first chunk cut our chunk's tail."""
-        if m.label(msg, "preempted_by_opening") == "retreat" and msg.dropped:  # ours: the env checked
-            self.retreat_preemptions += 1
-            self.retreat_dropped += msg.dropped
-
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
-        """Plan mode: a plan made after a retreat preempted the rest of the previous one."""
+        """A plan (closed loop: a step's chunk) made after a retreat preempted the rest of the one before."""
         if drop.by_opening == "retreat":
             self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped

@@ -75,6 +75,7 @@ class PlanBook:
         self.preemptions = 0
         self.foreign_ticks = 0  # ticks that played a chunk not in the book (reported as holds)
         self.drops: deque[PlanDrop] = deque(maxlen=256)
+        self._refused: set[int] = set()  # sent plans robot-io's status refused (of the newest ``keep``)
 
     def send(self, put: Callable[[], tuple[int, float]], plan: Plan, actions: np.ndarray) -> int:
         """``put()`` the chunk (it returns the chunk's number and stamp) and record it, under the lock: a
@@ -86,7 +87,9 @@ class PlanBook:
             self._order.append(seq)
             self.newest_seq = max(self.newest_seq, seq)
             while len(self._order) > self.keep:
-                self._by_seq.pop(self._order.popleft(), None)
+                old = self._order.popleft()
+                self._by_seq.pop(old, None)
+                self._refused.discard(old)
             return seq
 
     def get(self, seq: int) -> SentPlan | None:
@@ -97,6 +100,17 @@ class PlanBook:
         with self._lock:
             return self._by_seq.get(self.newest_seq)
 
+    def on_refused(self, msg: m.ChunkStatus) -> None:
+        """robot-io refused the chunk ``msg`` names: recorded when it is one of ours (number and stamp)."""
+        with self._lock:
+            sent = self._by_seq.get(msg.chunk_seq)
+            if sent is not None and sent.stamp == msg.chunk_stamp:
+                self._refused.add(msg.chunk_seq)
+
+    def refused(self, seq: int) -> bool:
+        with self._lock:
+            return seq in self._refused
+
     def on_status(self, msg: m.ChunkStatus) -> PlanDrop | None:
         """Account for a plan preempted by another plan; None for anything else (a refusal, an e-stop's
         clear and a plan run to its end drop no planned action in favour of a newer plan)."""
@@ -105,7 +119,7 @@ class PlanBook:
         with self._lock:
             sent, by = self._by_seq.get(msg.chunk_seq), self._by_seq.get(msg.preempted_by)
             if sent is None or sent.stamp != msg.chunk_stamp:
-                return None  # not one of our plans (closed-loop chunks, another learner, a forgery)
+                return None  # not one of our plans (another learner, a forgery)
             rest = sent.actions[msg.executed : msg.executed + msg.dropped]
             lengths = np.linalg.norm(rest, axis=1)
             drop = PlanDrop(

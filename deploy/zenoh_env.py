@@ -6,9 +6,11 @@ control period with exactly ``a`` applied (gymnasium semantics: TD3/DDPG run on 
 
 Chunks are a receding horizon: the tail after ``a`` is a plan (``planner(obs, a, n)``, by default zero
 displacements = stay put) that the robot keeps playing if the learner is late, and the next step's chunk
-(higher ``seq``) preempts it; the robot reports the dropped count. The learner node marks chunks
-with their segment index and why it began (``open_segment``), so a retreat shows as the first chunk
-of a new segment preempting the old segment's plan, in robot-io's own status of that chunk.
+(higher ``seq``) preempts it; the robot reports the dropped count. Each step's chunk is a ``Plan`` sent
+through the same channel as plan mode's (below): its segment and why it began come from the learner
+node (``open_segment``), so a retreat shows as the first chunk of a new segment preempting the old
+segment's plan, in robot-io's own status of that chunk, and the step is acknowledged as plan mode's
+ticks are: by the robot tick whose state names the chunk's first action as the one it played.
 Observation: ee position/velocity (from ``state``) and target position/velocity (from vision's
 ``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process ``NSReach-v0``
 (the reach task's observation is shared).
@@ -51,6 +53,7 @@ from tasks.reach import (
 )
 
 log = logging.getLogger(__name__)
+NO_PREDICTION = np.zeros((0, 15))  # a closed-loop chunk carries no predicted path
 SUSPENDED = ("estop", "paused", "fault")  # robot modes in which a tick is not a step of the task
 WHY_REFUSED = {
     "foreign": "another learner session has the arm",
@@ -173,10 +176,13 @@ class ZenohReachEnv(ReachSpec):
         self.dropped_total = 0
         self.preemptions = 0
         self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
-        # Plan execution: the robot's ticks not yet returned by ``advance`` (with the target then known),
-        # the plans sent, and the sender that delays them by the learner's latency.
+        # The robot's ticks not yet read (plan mode: by ``advance``, with the target then known; closed
+        # loop: since the last chunk went out, bounded while no step waits), the plans sent, and the
+        # sender that delays them by the learner's latency.
         self.plan_mode = settings.execution == "plan"
-        self._ticks: deque[tuple[m.RobotState, m.Target | None]] = deque()
+        self._ticks: deque[tuple[m.RobotState, m.Target | None]] = deque(
+            maxlen=None if self.plan_mode else 1024
+        )
         self._buffered_tick = -1  # the newest tick buffered (a state between ticks repeats it)
         self._last_state: m.RobotState | None = None  # of the last tick ``advance`` returned
         self.suspended_ticks = 0
@@ -187,11 +193,7 @@ class ZenohReachEnv(ReachSpec):
         # This learner's session: its chunks are numbered from 0 and obeyed once ``reset`` has taken over.
         self.session = LearnerSession(bus)
         self.refused: dict[str, int] = {}  # own chunks robot-io refused, by verdict
-        # Closed loop, by (number, stamp): our chunks refused, and ended (-> actions played), not yet seen
-        # by the step loop.
-        self._refused_chunks: set[tuple[int, float]] = set()
-        self._ended: dict[tuple[int, float], int] = {}
-        self._played: set[tuple[int, float]] = set()  # chunks a tick of ours played an action of
+        self._plans_sent = 0  # closed loop: each step's chunk is plan number ``_plans_sent``
         self._taken_over_by = ""
         self._obeyed_since_tick: int | None = None  # the tick of our takeover (reset); None before it
         self._instance = ""  # the robot-io process whose states these are (RobotState.instance)
@@ -201,7 +203,6 @@ class ZenohReachEnv(ReachSpec):
         bus.subscribe(m.STATE, self._on_state)
         bus.subscribe(self.target_topic, self._on_target)
         bus.subscribe(m.CHUNK_STATUS, self._on_status)
-        self.on_status: Callable[[m.ChunkStatus], None] | None = None
 
     # -- Zenoh callbacks -----------------------------------------------------------------------------
     def _on_state(self, msg: m.RobotState) -> None:
@@ -210,12 +211,10 @@ class ZenohReachEnv(ReachSpec):
                 self._new_robot_io(msg.instance)
             self._state = msg
             self._state_count += 1
-            if msg.played_chunk >= 0 and not self.plan_mode and self.session.mine(msg):
-                self._played.add((msg.played_chunk, msg.played_stamp))  # the tick ran this chunk's action
             since = self._obeyed_since_tick
             if since is not None and msg.tick > since and not self.session.mine(msg):
                 self._taken_over_by = msg.session or "(none)"  # the arm obeys another session since ours
-            if self.plan_mode and msg.tick > self._buffered_tick:
+            if msg.tick > self._buffered_tick:
                 self._buffered_tick = msg.tick
                 self._ticks.append((msg, self._target))
             self._cond.notify_all()
@@ -270,24 +269,18 @@ class ZenohReachEnv(ReachSpec):
         if verdict in REFUSALS:
             self._on_refused(msg, verdict)
             return
-        if msg.done and not self.plan_mode:
-            with self._cond:
-                self._ended[msg.chunk_seq, msg.chunk_stamp] = msg.executed
-                self._cond.notify_all()
         if msg.preempted_by >= 0 and msg.dropped:
             self.dropped_total += msg.dropped
             self.preemptions += 1
         drop = self.book.on_status(msg)
         if drop is not None and self.on_plan_dropped is not None:
             self.on_plan_dropped(drop)
-        if self.on_status is not None:
-            self.on_status(msg)
 
     def _on_refused(self, msg: m.ChunkStatus, verdict: str) -> None:
         """robot-io refused our chunk: say so (once per kind, then every 100th), let a waiting step resend."""
+        self.book.on_refused(msg)
         with self._cond:
             n = self.refused[verdict] = self.refused.get(verdict, 0) + 1
-            self._refused_chunks.add((msg.chunk_seq, msg.chunk_stamp))
             self._cond.notify_all()
         if n == 1 or n % 100 == 0:
             log.warning(
@@ -429,38 +422,21 @@ class ZenohReachEnv(ReachSpec):
             self._check_taken_over()
             if refused_in_a_row > (MAX_SIGNED_REFUSED if signed else MAX_REFUSED_IN_A_ROW):
                 raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {self.refused}")
+            plan = Plan(
+                self._plans_sent, chunk, chunk, NO_PREDICTION, segment=self.segment, opened_by=self._opening
+            )
+            self._plans_sent += 1
             with self._cond:
+                self._ticks.clear()  # only a tick after the chunk went out can have played it
                 tick0 = self._state.tick if self._state is not None else -1
-            opened_by = m.enum(m.ActionChunk, "opened_by", self._opening)
-            msg = m.ActionChunk(actions=chunk.ravel().tolist(), segment=self.segment, opened_by=opened_by)
-            sent = self.session.send(msg)
-            self.chunk_seq = sent[0]
-
-            def answered(sent: tuple[int, float] = sent) -> bool:
-                done = sent in self._ended or (sent in self._refused_chunks and not signed)
-                return sent in self._played or done or bool(self._taken_over_by)
-
-            # Exact acknowledgement: a tick's state naming this chunk (session, number, stamp) as the one it
-            # played, or its end report with an action played (cut by a newer chunk, e.g. a forgery inside
-            # the gap). Not "the queue shrank": a queue cleared by a refusal has not played anything.
-            if self._wait(answered, self.settings.step_timeout_s):
-                with self._cond:
-                    by_state = sent in self._played
-                    by_report = self._ended.get(sent, 0) > 0
-                    self._played.clear()
-                    refused = sent in self._refused_chunks and not signed
-                    self._refused_chunks.clear()
-                    self._ended.clear()
-                if by_report and not by_state:
-                    # The report comes before the state of the tick that played it: the observation must be
-                    # the state after the action, so wait for that tick's state.
-                    self._wait(lambda t=tick0: self._state.tick > t, self.settings.step_timeout_s)
-                if by_state or by_report:
-                    break
-                if refused:
-                    refused_in_a_row += 1
-                    continue  # stale or a jump (a forged number got in first): resend with the next one
-            elif signed and self.robot_mode == "running" and sent in self._refused_chunks:
+            seq = self._publish_plan(plan)
+            outcome = self._await_played(plan.plan_id, seq, signed)
+            if outcome == "played":
+                break
+            if outcome == "refused":
+                refused_in_a_row += 1
+                continue  # stale or a jump (a forged number got in first): resend with the next one
+            if signed and self.robot_mode == "running" and self.book.refused(seq):
                 refused_in_a_row += 1  # not played in time, and refused: e.g. a token that is not robot-io's
             # Not played: the arm is held (the watchdog after a stall of ours, a lost peer), e-stopped or
             # paused, the chunk was cut before it played, or another session took over (checked before
@@ -477,6 +453,27 @@ class ZenohReachEnv(ReachSpec):
         obs, distance, info = self._observe()
         truncated = self._steps >= self.settings.max_episode_steps or restarted
         return obs, reach_reward(distance), False, truncated, info
+
+    def _await_played(self, plan_id: int, seq: int, signed: bool) -> str:
+        """How the step's chunk ``seq`` fared within the step timeout: "played" when a tick played its
+        first action (the tick's own report, read by ``played`` as ``advance`` reads it; the ticks it
+        passes are the last chunk's tail), "refused" when robot-io refused it unsigned (signed, a refusal
+        naming it is about a copy: see ``step``), "" for neither (held, suspended, taken over)."""
+        deadline = time.monotonic() + self.settings.step_timeout_s
+
+        def news() -> bool:
+            unsigned_refusal = not signed and self.book.refused(seq)
+            return bool(self._ticks) or unsigned_refusal or bool(self._taken_over_by)
+
+        while self._wait(news, max(deadline - time.monotonic(), 0.0)):
+            with self._cond:
+                ticks = list(self._ticks)
+                self._ticks.clear()
+            if any(played(state, self.book, self.session.id)[0] == plan_id for state, _ in ticks):
+                return "played"
+            if (not signed and self.book.refused(seq)) or self._taken_over_by:
+                return "refused" if not self._taken_over_by else ""
+        return ""
 
     def _check_taken_over(self) -> None:
         """Raise ``TakenOver`` when robot-io obeys another session: a learner never fights another one
@@ -496,7 +493,7 @@ class ZenohReachEnv(ReachSpec):
         else:
             self._sender.submit(plan)
 
-    def _publish_plan(self, plan: Plan) -> None:
+    def _publish_plan(self, plan: Plan) -> int:
         actions = cap_steps(plan.actions, self.settings.max_step_m)
         predicted = np.asarray(plan.predicted, float)[1 : len(actions) + 1, 0:3]
         msg = m.ActionChunk(
@@ -506,6 +503,7 @@ class ZenohReachEnv(ReachSpec):
             opened_by=m.enum(m.ActionChunk, "opened_by", plan.opened_by),
         )
         self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions)
+        return self.chunk_seq
 
     def queued(self, n: int) -> np.ndarray:
         """The next ``n`` (or fewer) actions the robot will play if no newer plan arrives, as of the last

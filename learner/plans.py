@@ -23,7 +23,8 @@ import numpy as np
 Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-OPENINGS = ("first", "retreat", "h_max", "target_lost")  # why a plan is made (see ``Plan.opened_by``)
+# Why a plan is made (``Plan.opened_by``); "continue": a closed-loop step's chunk inside its segment.
+OPENINGS = ("first", "retreat", "h_max", "target_lost", "continue")
 
 
 @dataclass

@@ -114,10 +114,13 @@ def test_with_latency_the_old_plan_keeps_playing_until_the_new_one_lands(robot_h
 
 def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
     """Closed loop: the chunk that opens a segment after a retreat says so, and robot-io's status of the
-    chunk it cut echoes it (the learner counts retreat drops from that, not from a list of its own)."""
+    chunk it cut echoes it. Each step's chunk is a plan through the plan channel: the drop reaches the
+    learner as plan mode's do (``on_plan_dropped``), one account, not a second one of its own."""
     stack, probe = robot_hub
     chunks = probe.collect(m.CMD_CHUNK, arrival=False)
     env = open_env(stack, probe.token, execution="closed_loop", chunk_len=5)
+    drops: list = []
+    env.on_plan_dropped = drops.append
     try:
         env.reset(seed=3)
         me = env.session.id
@@ -139,6 +142,11 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
     assert (first.chunk_seq, first.segment, m.label(first, "opened_by")) == (mine[0][0], 0, "first")
     assert (first.preempted_by, m.label(first, "preempted_by_opening")) == (mine[1][0], "retreat")
     assert (second.segment, m.label(second, "preempted_by_opening")) == (4, "continue")
+    assert [(d.plan_id, d.by_plan_id, d.by_opening) for d in drops[:2]] == [
+        (0, 1, "retreat"),
+        (1, 2, "continue"),
+    ]
+    assert drops[0].dropped == first.dropped and drops[0].moving == 0  # the tail stays put: no motion lost
 
 
 def test_the_learner_in_plan_mode_retreats_and_its_new_plan_plays_next(robot_hub, tmp_path):
