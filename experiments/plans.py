@@ -77,6 +77,9 @@ def baseline_method(algo: str, h: int) -> str:
 
 
 LOCAL_METHOD = "adaptiveh-local"
+# The plan retreat whose tolerance is learned from the plan's own prediction gaps (``plan_tolerance:
+# learned``, ``learner/plan_tolerance.py``), at the default threshold: no per-task constant.
+LEARNED_METHOD = "adaptiveh-learned"
 
 
 def _horizon(method: str, prefix: str) -> int:
@@ -119,6 +122,8 @@ def method_config(method: str) -> tuple[str, dict[str, Any]]:
         return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_kernel_scale": scale}
     if method == LOCAL_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "local", "retreat_threshold": None}
+    if method == LEARNED_METHOD:
+        return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_tolerance": "learned"}
     base = baseline_of(method)
     if base is not None:
         return base[0], {"plan_h": base[1]}
@@ -135,6 +140,8 @@ def method_label(method: str) -> str:
         return f"AdaptiveH, plan retreat, kernel x{method.removeprefix('adaptiveh-k')}"
     if method == LOCAL_METHOD:
         return "AdaptiveH, local retreat"
+    if method == LEARNED_METHOD:
+        return "AdaptiveH, plan retreat, learned tolerance"
     base = baseline_of(method)
     if base is not None:
         algo, h = base
@@ -203,6 +210,7 @@ def build_plans_plan(
     front_h: tuple[int, ...] = FRONT_H,
     thresholds: tuple[float, ...] = THRESHOLDS,
     kernel_scales: tuple[float, ...] = KERNEL_SCALES,
+    learned: bool = True,
     latencies: tuple[int, ...] = LATENCIES,
     baseline_methods: tuple[str, ...] = BASELINE_METHODS,
     baseline_h: tuple[int, ...] = BASELINE_H,
@@ -233,6 +241,7 @@ def build_plans_plan(
         raise ValueError(f"steps must be >= 1, got {steps}")
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
     points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales] + [LOCAL_METHOD]
+    points += [LEARNED_METHOD] if learned else []
     main = [fixed_method(h) for h in front_h] + points
     lat_settings = [k for k in LATENCY_SETTINGS if k in keys]
     lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD)]

@@ -66,9 +66,9 @@ def test_every_run_is_in_plan_mode_with_its_own_file(tiny: tuple[Path, dict]) ->
     out, summary = tiny
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     files = sorted((out / "runs").glob("*.json"))
-    # 2 settings x (2 fixed H + 2 AdaptiveH) x 2 seeds, + latency on cartpole_fast: H=10 at L 0 and
-    # H=1, H=10, AdaptiveH 0.8 at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
-    assert len(files) == summary["plan"]["runs_total"] == 20 + 8 + 2
+    # 2 settings x (2 fixed H + 4 AdaptiveH points) x 2 seeds, + latency on cartpole_fast: H=10 at L 0
+    # and H=1, H=10, AdaptiveH 0.8 at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
+    assert len(files) == summary["plan"]["runs_total"] == 24 + 8 + 2
     for path in files:
         run = json.loads(path.read_text())
         assert run["global_step"] == STEPS and run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
@@ -97,7 +97,12 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
     for s in on_disk["settings"].values():
         assert [f["H"] for f in s["front"]] == [1, 5]
         assert s["front"][0]["replans_per_100"]["mean"] == pytest.approx(100.0)
-        assert set(s["points"]) == {"adaptiveh-plan0.8", "adaptiveh-k0.15", "adaptiveh-local"}
+        assert set(s["points"]) == {
+            "adaptiveh-plan0.8",
+            "adaptiveh-k0.15",
+            "adaptiveh-local",
+            "adaptiveh-learned",
+        }
         for p in s["points"].values():
             assert (
                 p["n"] == 2
@@ -121,6 +126,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
         "cartpole_fast:adaptiveh-plan0.8:td3-h5",
         "cartpole_fast:adaptiveh-k0.15:td3-h5",
         "cartpole_fast:adaptiveh-local:td3-h5",
+        "cartpole_fast:adaptiveh-learned:td3-h5",
     }
     lat = on_disk["latency"]
     assert list(lat) == ["cartpole_fast"]
@@ -203,9 +209,9 @@ def test_front_gap_interpolates_in_log_rate() -> None:
 
 def test_plan_order_and_shape() -> None:
     plan = build_plans_plan()
-    # front (6) + points (3 thresholds, 2 kernel scales, local), latency sweep, and TD3/SAC at H = 10 on
-    # cartpole_fast and reach_slow, 3 seeds
-    assert len(plan.runs) == len(set(r.name for r in plan.runs)) == 5 * 5 * 12 + 5 * 2 * 3 * 3 + 3 * 2 * 2
+    # front (6) + points (3 thresholds, 2 kernel scales, local, learned), latency sweep, and TD3/SAC at
+    # H = 10 on cartpole_fast and reach_slow, 3 seeds
+    assert len(plan.runs) == len(set(r.name for r in plan.runs)) == 5 * 5 * 13 + 5 * 2 * 3 * 3 + 3 * 2 * 2
     kind = {(False, False): "main", (True, False): "latency", (False, True): "baselines"}
     order = [(r.seed, kind[bool(r.latency), baseline_of(r.method) is not None]) for r in plan.runs]
     # seed by seed; each seed's latency runs, then its baselines, right after the next seed's front and points
@@ -249,6 +255,10 @@ def test_method_names_of_the_baselines_in_plan_mode() -> None:
         {"execution": "plan", "retreat": "plan", "plan_kernel_scale": 0.15},
     )
     assert method_label("adaptiveh-k0.15") == "AdaptiveH, plan retreat, kernel x0.15"
+    assert method_config("adaptiveh-learned") == (
+        "adaptiveh",
+        {"execution": "plan", "retreat": "plan", "plan_tolerance": "learned"},
+    )
     assert method_label("td3-h10") == "TD3, H = 10" and method_label("sac-h1") == "SAC, H = 1 (closed loop)"
     assert baseline_of("ddpg-h20") == ("ddpg", 20) and baseline_of("rkhs-h20") is None
     for bad in ("td3-h0", "td3-h", "td3-hx", "td3-h1.5", "td3-h-3", "td3-h010", "sac-h 5", "rkhs-h0"):
