@@ -50,8 +50,8 @@ def stack_robustness(data: dict[str, Any]) -> str:
     """``results/stack_robustness.json``: one row per condition (and agent variant), medians over seeds."""
     lines = [
         "| condition | seeds | last-quarter success %, median (range) | success by quarter %, median |"
-        " runs < 70 % | mean H | workspace clips | target age p50 / p99 ms |",
-        "|---|---|---|---|---|---|---|---|",
+        " runs < 70 % | mean H | workspace clips | target age p50 / p99 ms | load, 5-min avg |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for label, row in data["table"].items():
         runs = [r for r in data["runs"] if _row_label(r) == label]
@@ -67,7 +67,8 @@ def stack_robustness(data: dict[str, Any]) -> str:
             f"| {sum(x is not None and x < GOAL for x in last)} "
             f"| {_fmt(_median([r.get('mean_H') for r in runs]), '.1f')} "
             f"| {'-' if in_process else _fmt(row['workspace_clips_median'])} "
-            f"| {'-' if in_process else age} |"
+            f"| {'-' if in_process else age} "
+            f"| {_fmt(_median([(r.get('load_during') or [None, None])[1] for r in runs]), '.1f')} |"
         )
     restarts = [
         (_row_label(r), (r.get("robot_io_restart") or {}).get("resumed_after_s"))
