@@ -13,4 +13,8 @@ if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" =
 fi
 . .venv/bin/activate
 ruff check .
-python -m pytest -q -p no:cacheprovider "$@"
+# A random test order each run (pytest-randomly); the seed is printed so that a failure can be rerun in
+# the same order: RANDOMLY_SEED=N bash scripts/test.sh.
+seed=${RANDOMLY_SEED:-$((RANDOM * 32768 + RANDOM))}
+echo "test order: pytest-randomly seed $seed (RANDOMLY_SEED=$seed bash scripts/test.sh repeats it)"
+python -m pytest -q -p no:cacheprovider -p randomly --randomly-seed="$seed" "$@"
