@@ -53,7 +53,7 @@ from tasks.reach import (
 )
 
 log = logging.getLogger(__name__)
-NO_PREDICTION = np.zeros((0, 15))  # a closed-loop chunk carries no predicted path
+NO_PREDICTION = np.zeros((0, 0))  # a closed-loop chunk carries no predicted path
 SUSPENDED = ("estop", "paused", "fault")  # robot modes in which a tick is not a step of the task
 WHY_REFUSED = {
     "foreign": "another learner session has the arm",
@@ -460,19 +460,18 @@ class ZenohReachEnv(ReachSpec):
         passes are the last chunk's tail), "refused" when robot-io refused it unsigned (signed, a refusal
         naming it is about a copy: see ``step``), "" for neither (held, suspended, taken over)."""
         deadline = time.monotonic() + self.settings.step_timeout_s
-
-        def news() -> bool:
-            unsigned_refusal = not signed and self.book.refused(seq)
-            return bool(self._ticks) or unsigned_refusal or bool(self._taken_over_by)
-
+        refused = lambda: not signed and self.book.refused(seq)  # noqa: E731
+        news = lambda: bool(self._ticks) or refused() or bool(self._taken_over_by)  # noqa: E731
         while self._wait(news, max(deadline - time.monotonic(), 0.0)):
             with self._cond:
                 ticks = list(self._ticks)
                 self._ticks.clear()
             if any(played(state, self.book, self.session.id)[0] == plan_id for state, _ in ticks):
                 return "played"
-            if (not signed and self.book.refused(seq)) or self._taken_over_by:
-                return "refused" if not self._taken_over_by else ""
+            if self._taken_over_by:
+                return ""
+            if refused():
+                return "refused"
         return ""
 
     def _check_taken_over(self) -> None:

@@ -104,7 +104,8 @@ def assert_within_limits(states: list, robot: dict, tol_m: float = 0.01) -> None
     process (its ``seq`` restarts with it), and a reset's jump home is not a played step."""
     import numpy as np
 
-    from robot_io.description import MODELS, RobotDescription
+    from robot_io.config import RobotConfig
+    from robot_io.description import RobotDescription
     from robot_io.kinematics import Kinematics
 
     lo, hi = np.array(robot["workspace"]["lo"]), np.array(robot["workspace"]["hi"])
@@ -115,9 +116,8 @@ def assert_within_limits(states: list, robot: dict, tol_m: float = 0.01) -> None
     assert np.all(q >= limits.lower - 1e-3) and np.all(q <= limits.upper + 1e-3), "outside the joint limits"
     # A reset homes the arm between two ticks, and the tick after it may already play the new episode's
     # first chunk: a tick that ends near home may be that jump, not a played step.
-    model = robot.get("model", "panda")
-    home_q = robot.get("home_q", MODELS[model].home_q)
-    home = Kinematics(RobotDescription(model)).ee_position(np.asarray(home_q, float))
+    cfg = RobotConfig.model_validate(robot)  # the home pose a reset goes to, defaults included
+    home = Kinematics(RobotDescription(cfg.model)).ee_position(np.asarray(cfg.home_q, float))
     near_home = robot["max_step_m"] + tol_m
     moves = [
         float(np.linalg.norm(np.subtract(s.ee_pos, prev.ee_pos)))

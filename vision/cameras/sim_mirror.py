@@ -112,7 +112,8 @@ class MirrorSimCamera:
         age = time.time() - target[2]
         if age > self.stale_after_s:
             raise CameraError(f"sim camera: the newest world is {age:.1f} s old (physics owner gone?)")
-        return WorldSnapshot(*q, *target)
+        (q, dq, q_stamp), (position, velocity, stamp) = q, target
+        return WorldSnapshot(q, dq, q_stamp, target_position=position, target_velocity=velocity, stamp=stamp)
 
     def capture(self) -> Frame:
         """Wait for the next frame time, then render the world as it is at that instant."""
