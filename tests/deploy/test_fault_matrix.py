@@ -89,6 +89,17 @@ class Run:
         playing = sum(s.played_chunk >= 0 for s in late) / len(late)
         assert playing >= 0.6, f"only {playing:.0%} of {len(late)} ticks played a plan"
 
+    def wait_playing(self, timeout: float = 60.0) -> None:
+        """The arm runs and plays plans now (a fault an earlier test made may leave it held a while)."""
+
+        def playing() -> bool:
+            late = self.since(m.STATE, time.time() - 1.0)
+            recent = late[-5:]
+            running = all(s.mode == m.RobotState.RUNNING for s in recent)
+            return len(late) >= 10 and running and sum(s.played_chunk >= 0 for s in recent) >= 3
+
+        self.probe.wait(playing, timeout, "the arm running and playing plans")
+
     def wait_restarted(self, part: str, old: int, timeout: float = 60.0) -> int:
         deadline = time.monotonic() + timeout
         while parts_of(self.path).get(part) in (None, old):
@@ -137,6 +148,7 @@ def _pause(pid: int, seconds: float) -> tuple[float, float]:
 
 def test_01_stopped_learner_the_actor_goes_on_planning_then_learning_resumes(run: Run) -> None:
     """The actor beside the arm plans from the snapshot it has: a stopped learner stops nothing."""
+    run.wait_playing()
     pid = run.pids()["learn"]
     t0, t1 = _pause(pid, 3.0)
     run.assert_playing(t0 + 0.5, t1)
@@ -215,6 +227,7 @@ def test_05_a_killed_sensor_or_monitor_is_restarted_and_the_learner_goes_on(run:
 
 
 def test_06_a_killed_learner_the_arm_goes_on_and_a_new_one_resumes(run: Run) -> None:
+    run.wait_playing()
     pids = run.pids()
     t0 = time.time()
     os.kill(pids["learn"], signal.SIGKILL)
