@@ -117,8 +117,12 @@ def test_01_reset_homes_the_fr3_and_the_scripted_target_is_published(stack):
     reply = probe.learner.reset(next(probe.episodes), timeout=30)
     assert reply.ok, reply.detail
     assert reply.state.mode == m.RobotState.RUNNING
-    # FR3 home (our FK: 0.307, 0, 0.487); franky-sim's PD sags a few millimetres under gravity.
-    np.testing.assert_allclose(reply.state.ee_pos, [0.307, 0.0, 0.487], atol=0.01)
+    # FR3 home (our FK: 0.307, 0, 0.487). The reply is read as franky's motion ends; franky-sim's PD
+    # tracks it with a lag that grows on a loaded machine (1.1 cm once in CI, on 2 busy cores), then
+    # settles within a few millimetres (it sags under gravity).
+    home = np.array([0.307, 0.0, 0.487])
+    assert np.linalg.norm(reply.state.ee_pos - home) < 0.03, reply.state.ee_pos
+    probe.wait(lambda: np.linalg.norm(probe.latest().ee_pos - home) < 0.01, 5, "the arm settled at home")
     truth = probe.wait(lambda: probe.truth[-1] if probe.truth else None, 5, "sim/target_truth")
     assert truth.valid and 0.3 < truth.position[0] < 0.7
 
