@@ -49,7 +49,7 @@ class DifferentialIK:
             frame_type="body",
             position_cost=config.position_cost,
             orientation_cost=config.orientation_cost,
-            lm_damping=1e-3,
+            lm_damping=config.lm_damping,
         )
         self.posture_task = mink.PostureTask(self.model, cost=config.posture_cost)
         self.limits = [

@@ -106,8 +106,9 @@ def sim_camera(data: dict[str, Any]) -> str:
 def robot_io_tick(data: dict[str, Any]) -> str:
     """``results/robot_io_bench.json``: the control tick's parts, then the two-process latencies."""
     tick = data["tick_in_process"]
+    qps = tick["ik_qps_per_command"]
     rows = [
-        ("IK, one command (" + str(tick["ik_qps_per_command"]) + " QPs)", tick["ik"]),
+        (f"IK, one command ({qps} QP{'s' if qps > 1 else ''})", tick["ik"]),
         ("one bare mink QP, same problem, same run", tick["bare_mink_qp"]),
         ("command check (joint, speed, workspace)", tick["command_check"]),
         ("state (position and velocity, one kinematics pass)", tick["state"]),
