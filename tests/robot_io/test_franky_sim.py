@@ -69,13 +69,14 @@ def stack(tmp_path_factory):
             "franka": {"ip": HOST, "home_dynamics": 0.5, "simulated_target": True, "lock_memory": True},
         },
     }
-    path = tmp_path_factory.mktemp("franky") / "robot.yaml"
+    folder = tmp_path_factory.mktemp("franky")
+    path, log = folder / "robot.yaml", folder / "robot_io.log"
     path.write_text(yaml.safe_dump(cfg))
+    # Its output to a file, shown if it does not come up: a pipe nobody reads would block it once full.
     proc = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"],
-        stdout=subprocess.PIPE,
+        stdout=log.open("w"),
         stderr=subprocess.STDOUT,
-        text=True,
     )
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     bus.declare_alive("learner")
@@ -86,7 +87,8 @@ def stack(tmp_path_factory):
     except AssertionError:
         proc.kill()
         server.kill()
-        pytest.fail("robot-io did not come up:\n" + proc.communicate()[0])
+        proc.wait()
+        pytest.fail("robot-io did not come up:\n" + log.read_text())
     yield bus, probe, server
     proc.terminate()
     try:
@@ -185,9 +187,13 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(arm):
     )
     reply = probe.learner.reset(next(probe.episodes), timeout=30)
     assert reply.ok, reply.detail
-    y0 = probe.latest().ee_pos[1]
-    send_chunk(bus, next(probe.chunks), np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
-    probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.05, 10, "chunks to play again")
+    y0, seq = probe.latest().ee_pos[1], next(probe.chunks)
+    send_chunk(bus, seq, np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
+    played = lambda: probe.latest().chunk_seq == seq and probe.latest().queue_len == 0  # noqa: E731
+    probe.wait(played, 10, "the chunk played")
+    # 10 cm commanded: the arm follows 11 cm, but in three runs of about 25 (not reproduced under load)
+    # the restarted simulator's arm lagged and followed 4.3 cm (each goal then starts from the measured arm).
+    probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.03, 5, "the end effector to follow")
 
 
 def test_05_a_config_naming_the_wrong_arm_is_refused():
