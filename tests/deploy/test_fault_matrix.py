@@ -52,6 +52,13 @@ class Run:
     def pids(self) -> dict[str, int]:
         return {**parts_of(self.path), "supervisor": self.up.pid}
 
+    def log_tail(self, name: str, lines: int = 40) -> str:
+        """The end of a part's log (``actor``, ``learner``, ``robot_io``, ...; a restarted part appends to
+        it), for a failure's message."""
+        path = Path(self.cfg["learner"]["checkpoint_dir"]).parent / "logs" / f"{name}.log"
+        text = path.read_text(errors="replace") if path.exists() else f"(no {path})"
+        return "\n".join(text.splitlines()[-lines:])
+
     def step(self) -> int:
         with self.probe.lock:
             return max((t.global_step for _, t in self.got["telemetry/learner"]), default=0)
@@ -153,7 +160,7 @@ def test_01_stopped_learner_the_actor_goes_on_planning_then_learning_resumes(run
     t0, t1 = _pause(pid, 3.0)
     run.assert_playing(t0 + 0.5, t1)
     run.wait_learning(t1)
-    assert run.pids()["learn"] == pid
+    assert run.pids()["learn"] == pid, f"learn was restarted; its log:\n{run.log_tail('learner')}"
 
 
 def test_01b_stopped_actor_the_arm_plays_out_its_plan_then_holds_then_acting_resumes(run: Run) -> None:
@@ -163,7 +170,7 @@ def test_01b_stopped_actor_the_arm_plays_out_its_plan_then_holds_then_acting_res
     plan = _longest_plan(run) / robot["control_rate_hz"]  # what robot-io has queued when the actor stops
     run.assert_held(t0 + plan + robot["watchdog_timeout_s"] + 0.3, t1)
     run.wait_learning(t1)
-    assert run.pids()["act"] == pid
+    assert run.pids()["act"] == pid, f"act was restarted; its log:\n{run.log_tail('actor')}"
 
 
 def test_02_stopped_robot_io_resumes_without_a_jump(run: Run) -> None:
@@ -171,7 +178,7 @@ def test_02_stopped_robot_io_resumes_without_a_jump(run: Run) -> None:
     t0, t1 = _pause(pid, 1.0)
     run.probe.wait(lambda: run.since(m.STATE, t1 + 0.5), 10, "robot states after SIGCONT")
     run.wait_learning(t1)
-    assert run.pids()["robot-io"] == pid
+    assert run.pids()["robot-io"] == pid, f"robot-io was restarted; its log:\n{run.log_tail('robot_io')}"
 
 
 def _still_playing_s(run: Run) -> float:
