@@ -55,7 +55,7 @@ class Run:
     def log_tail(self, name: str, lines: int = 40) -> str:
         """The end of a part's log (``actor``, ``learner``, ``robot_io``, ...; a restarted part appends to
         it), for a failure's message."""
-        path = Path(self.cfg["learner"]["checkpoint_dir"]).parent / "logs" / f"{name}.log"
+        path = self.path.parent / "logs" / f"{name}.log"  # adaptiveh up: <run dir>/logs/<part>.log
         text = path.read_text(errors="replace") if path.exists() else f"(no {path})"
         return "\n".join(text.splitlines()[-lines:])
 

@@ -47,6 +47,11 @@ class Probe(BusProbe):
         with self.lock:
             return self.states[-1][1]
 
+    def wait_played(self, seq: int, timeout: float = 10.0) -> None:
+        """Chunk ``seq`` played to its end: the newest state names it and the queue is empty."""
+        state = self.latest
+        self.wait(lambda: state().chunk_seq == seq and state().queue_len == 0, timeout, "the chunk played")
+
     def kinds(self) -> list[str]:
         with self.lock:
             return [m.label(e, "kind") for e in self.events]
@@ -73,11 +78,12 @@ def stack(tmp_path_factory):
     path, log = folder / "robot.yaml", folder / "robot_io.log"
     path.write_text(yaml.safe_dump(cfg))
     # Its output to a file, shown if it does not come up: a pipe nobody reads would block it once full.
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"],
-        stdout=log.open("w"),
-        stderr=subprocess.STDOUT,
-    )
+    with log.open("w") as out:  # the child keeps its own copy of the file
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "deploy.cli", "robot-io", "--config", str(path), "--log-level", "WARNING"],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
     bus = Bus(open_session(ZenohConfig(connect=(f"tcp/127.0.0.1:{port}",))), name)
     bus.declare_alive("learner")
     probe = Probe(bus)
@@ -134,9 +140,7 @@ def test_02_chunks_play_on_the_arm(arm):
     y0, events = probe.latest().ee_pos[1], len(probe.kinds())
     seq = next(probe.chunks)
     send_chunk(bus, seq, np.tile([0.0, 0.01, 0.0], (20, 1)), probe.learner.id)  # 20 cm at 1 cm per period
-    probe.wait(
-        lambda: probe.latest().queue_len == 0 and probe.latest().chunk_seq == seq, 10, "the chunk played"
-    )
+    probe.wait_played(seq)
     probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.04, 5, "the end effector to follow")
     assert "driver_error" not in probe.kinds()[events:]
 
@@ -189,8 +193,7 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(arm):
     assert reply.ok, reply.detail
     y0, seq = probe.latest().ee_pos[1], next(probe.chunks)
     send_chunk(bus, seq, np.tile([0.0, 0.01, 0.0], (10, 1)), probe.learner.id)
-    played = lambda: probe.latest().chunk_seq == seq and probe.latest().queue_len == 0  # noqa: E731
-    probe.wait(played, 10, "the chunk played")
+    probe.wait_played(seq)
     # 10 cm commanded: the arm follows 11 cm, but in three runs of about 25 (not reproduced under load)
     # the restarted simulator's arm lagged and followed 4.3 cm (each goal then starts from the measured arm).
     probe.wait(lambda: probe.latest().ee_pos[1] - y0 > 0.03, 5, "the end effector to follow")
