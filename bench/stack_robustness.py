@@ -68,7 +68,7 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # it is (its kernel on the relative coordinates, its step and exploration schedules) with the plan
 # retreat's tolerance kept; reach_agent_plan1: the same, the plan retreat at the policy's own kernel.
 # learned_tolerance (issue #33): the shipped agent with the plan retreat's tolerance learned from the
-# plan's own prediction error (learner/plan_tolerance.py) instead of plan_kernel_scale.
+# plan's own prediction error (learner/plan_tolerance.py) instead of the default noise floor.
 # mean_limit: the shipped agent with the policy's mean bounded to the action box (a mean far past the
 # box clips every sample to the same action, which then carries no gradient: the non-take-off's
 # suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
@@ -111,8 +111,9 @@ def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
     if variant == "learned_tolerance":
         return {**agent, "plan_tolerance": "learned"}
     reach = {**load_yaml(ROOT / "configs/reach.yaml")["agent"], "retreat": None}
-    scale = agent["plan_kernel_scale"] if variant == "reach_agent" else 1.0
-    return {**reach, "plan_kernel_scale": scale}
+    if variant == "reach_agent":
+        return {**reach, **{k: agent[k] for k in ("plan_kernel_scale", "plan_tolerance") if k in agent}}
+    return {**reach, "plan_kernel_scale": 1.0, "plan_tolerance": "fixed"}
 
 
 class Watcher:

@@ -29,16 +29,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from experiments.plan import ENVS, EnvSpec, RunSpec, agent_config, env_kwargs
+from learner.plan_tolerance import narrowest_scale
 
 # NS Reach with the fast target (motion preset ``fast``), at the paper bench's Reach budget.
 REACH_FAST = ENVS["reach_slow"].model_copy(
     update={"key": "reach_fast", "preset": "fast", "label": "NS Reach (fast)"}
 )
+# A target harder than ``fast`` (preset ``erratic``), held out: only the front and the default run there,
+# and no setting of the retreat was chosen on it.
+REACH_ERRATIC = ENVS["reach_slow"].model_copy(
+    update={"key": "reach_erratic", "preset": "erratic", "label": "NS Reach (erratic, held out)"}
+)
 SETTINGS: dict[str, EnvSpec] = {
-    k: ENVS.get(k, REACH_FAST)
-    for k in ("cartpole_slow", "cartpole_fast", "pendulum_slow", "reach_slow", "reach_fast")
+    **{k: ENVS.get(k, REACH_FAST) for k in ("cartpole_slow", "cartpole_fast", "pendulum_slow", "reach_slow")},
+    "reach_fast": REACH_FAST,
+    "reach_erratic": REACH_ERRATIC,
 }
+HELD_OUT = ("reach_erratic",)
 FRONT_H = (1, 2, 5, 10, 20, 50)
 THRESHOLDS = (0.5, 0.8, 0.9)
 # The plan retreat with a narrower kernel between predicted and reached state (``plan_kernel_scale``, on
@@ -49,7 +59,11 @@ LATENCIES = (0, 2, 5, 10)
 LATENCY_SETTINGS = ("cartpole_fast", "reach_slow")
 LATENCY_THRESHOLD = 0.8
 LATENCY_H = (1, 10)
-DRIFT_PAIRS = (("cartpole_slow", "cartpole_fast"), ("reach_slow", "reach_fast"))
+DRIFT_PAIRS = (
+    ("cartpole_slow", "cartpole_fast"),
+    ("reach_slow", "reach_fast"),
+    ("reach_fast", "reach_erratic"),
+)
 FULL_SEEDS = 5
 QUICK_SEEDS = 2
 QUICK_STEPS = {"NSCartPoleContinuous-v0": 1000, "NSPendulum-v0": 1000, "NSReach-v0": 500}
@@ -77,6 +91,13 @@ def baseline_method(algo: str, h: int) -> str:
 
 
 LOCAL_METHOD = "adaptiveh-local"
+# The points measured before the default tolerance (issue #33) keep what they ran with: the plan retreat
+# at the policy's own kernel (``plan<t>``), a fixed kernel narrowed by a factor (``k<scale>``).
+FIXED = {"plan_tolerance": "fixed"}
+PLAN_KERNEL = {**FIXED, "plan_kernel_scale": 1.0}
+# The library's defaults in plan mode (the plan retreat, its threshold and tolerance as AdaptiveHConfig has
+# them): one configuration for every setting and the stack (issue #33).
+DEFAULT_METHOD = "adaptiveh-default"
 # The plan retreat whose tolerance is learned from the plan's own prediction gaps (``plan_tolerance:
 # learned``, ``learner/plan_tolerance.py``), at the default threshold: no per-task constant.
 LEARNED_METHOD = "adaptiveh-learned"
@@ -91,13 +112,11 @@ def _horizon(method: str, prefix: str) -> int:
 
 
 def where_narrowest(bandwidth: float | list[float] | None, scale: float) -> float | list[float]:
-    """``scale`` on the dimensions where the policy's kernel is narrowest, 1 elsewhere: the coordinates a
-    task turns on (NS Reach: the target relative to the end effector, 0.5 against 5 on the absolute 12);
-    every dimension when the kernel has one width."""
+    """``scale`` as the learner applies it (``learner.plan_tolerance.narrowest_scale``), written out per
+    dimension in the run's config when the policy's kernel has several widths."""
     if bandwidth is None or not isinstance(bandwidth, list) or len(set(bandwidth)) == 1:
         return scale
-    narrowest = min(bandwidth)
-    return [scale if b == narrowest else 1.0 for b in bandwidth]
+    return narrowest_scale(np.asarray(bandwidth, float), scale).tolist()
 
 
 def baseline_of(method: str) -> tuple[str, int] | None:
@@ -116,12 +135,14 @@ def method_config(method: str) -> tuple[str, dict[str, Any]]:
         return "rkhs", {"execution": "plan", "fixed_h": _horizon(method, "rkhs-h")}
     if method.startswith("adaptiveh-plan"):
         t = float(method.removeprefix("adaptiveh-plan"))
-        return "adaptiveh", {"execution": "plan", "retreat": "plan", "retreat_threshold": t}
+        return "adaptiveh", {"execution": "plan", "retreat": "plan", "retreat_threshold": t, **PLAN_KERNEL}
     if method.startswith("adaptiveh-k"):
         scale = float(method.removeprefix("adaptiveh-k"))
-        return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_kernel_scale": scale}
+        return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_kernel_scale": scale, **FIXED}
     if method == LOCAL_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "local", "retreat_threshold": None}
+    if method == DEFAULT_METHOD:  # the configs' closed-loop ``retreat: local`` unset: plan mode's own
+        return "adaptiveh", {"execution": "plan", "retreat": None}
     if method == LEARNED_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_tolerance": "learned"}
     base = baseline_of(method)
@@ -142,6 +163,8 @@ def method_label(method: str) -> str:
         return "AdaptiveH, local retreat"
     if method == LEARNED_METHOD:
         return "AdaptiveH, plan retreat, learned tolerance"
+    if method == DEFAULT_METHOD:
+        return "AdaptiveH, default (noise-floor tolerance)"
     base = baseline_of(method)
     if base is not None:
         algo, h = base
@@ -242,9 +265,10 @@ def build_plans_plan(
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
     points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales] + [LOCAL_METHOD]
     points += [LEARNED_METHOD] if learned else []
-    main = [fixed_method(h) for h in front_h] + points
+    points += [DEFAULT_METHOD]
+    front = [fixed_method(h) for h in front_h]
     lat_settings = [k for k in LATENCY_SETTINGS if k in keys]
-    lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD)]
+    lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD), DEFAULT_METHOD]
 
     def spec(key: str, method: str, seed: int, latency: int = 0) -> PlanRunSpec:
         algo, overrides = method_config(method)
@@ -258,7 +282,12 @@ def build_plans_plan(
         return PlanRunSpec(key, algo, seed, budget[key], cfg, kwargs, method, latency)
 
     cheap_first = sorted(keys, key=lambda k: SETTINGS[k].env_id == "NSReach-v0")
-    main_runs = [spec(k, m, s) for s in range(n_seeds) for k in cheap_first for m in main]
+    main_runs = [
+        spec(k, m, s)
+        for s in range(n_seeds)
+        for k in cheap_first
+        for m in front + ([DEFAULT_METHOD] if k in HELD_OUT else points)
+    ]
     have = {r.name for r in main_runs}
     lat_runs = []
     for s in range(n_lat):

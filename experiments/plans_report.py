@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from experiments.plans import (
+    DEFAULT_METHOD,
     DRIFT_PAIRS,
     LATENCY_THRESHOLD,
     PLAN_BASELINES,
@@ -33,7 +34,7 @@ from experiments.plans import (
 from experiments.plans_figures import make_plans_figures
 from experiments.plans_tables import write_plans_markdown
 from experiments.report import _count, _h_stats, load_runs, stale_runs
-from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, outcome
+from experiments.stats import N_BOOT, bootstrap_diff, bootstrap_mean, bootstrap_paired_diff, outcome
 from experiments.verdicts import _overall
 from learner.run_summary import h_stats
 
@@ -161,6 +162,48 @@ def front_gap(
     }
 
 
+def front_gap_paired(front: list[dict[str, Any]], point: dict[str, Any], seed: int = 0) -> dict[str, Any]:
+    """Per seed, the point's final return minus that seed's own fixed-H front interpolated at that seed's
+    re-plan rate (as :func:`front_gap`, one world at a time), averaged over the seeds with a 95% interval
+    that resamples seeds. ``per_seed`` keeps each seed's difference."""
+    diffs: dict[int, float] = {}
+    for i, s in enumerate(point["seeds"]):
+        rates, rets = [], []
+        for f in front:
+            if s in f["seeds"]:
+                j = f["seeds"].index(s)
+                rates.append(f["per_seed"]["replans_per_100"][j])
+                rets.append(f["per_seed"]["final_return"][j])
+        if len(rates) >= 2:
+            order = np.argsort(rates)
+            at = np.log(point["per_seed"]["replans_per_100"][i])
+            front_at = np.interp(at, np.log(np.asarray(rates)[order]), np.asarray(rets)[order])
+            diffs[s] = float(point["per_seed"]["final_return"][i] - front_at)
+    m = bootstrap_mean(list(diffs.values()), seed=seed)
+    d = {"diff": m["mean"], "lo": m["lo"], "hi": m["hi"], "n_a": m["n"], "n_b": m["n"]}
+    return {**d, "outcome": outcome(d), "per_seed": {str(k): v for k, v in diffs.items()}}
+
+
+def per_seed_minus(point: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
+    """``point − other`` final return on each seed both ran."""
+    a = dict(zip(point["seeds"], point["per_seed"]["final_return"], strict=True))
+    b = dict(zip(other["seeds"], other["per_seed"]["final_return"], strict=True))
+    return {str(k): a[k] - b[k] for k in sorted(set(a) & set(b))}
+
+
+def _vs_closed_loop(point: dict[str, Any], h1: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The point against fixed H = 1 (the closed loop), paired per seed, and how many times fewer
+    re-plans it needed."""
+    if h1 is None or not point["n"]:
+        return None
+    d = bootstrap_paired_diff(
+        dict(zip(point["seeds"], point["per_seed"]["final_return"], strict=True)),
+        dict(zip(h1["seeds"], h1["per_seed"]["final_return"], strict=True)),
+    )
+    ratio = h1["replans_per_100"]["mean"] / point["replans_per_100"]["mean"]
+    return {**d, "outcome": outcome(d), "fewer_replans": ratio}
+
+
 def _vs_front(pairs: list[tuple[list[float], list[float]]], st: dict[str, Any], seed: int) -> dict[str, Any]:
     """A group's final return against the fixed-H front at its re-plan rate (``front_gap``), with outcome."""
     gap = front_gap(pairs, (st["per_seed"]["replans_per_100"], st["per_seed"]["final_return"]), seed=seed)
@@ -213,7 +256,7 @@ def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: d
     plan_base = _plan_baselines(plan, runs, key, pairs["final_return"], base)
     best = max((f for f in front if f["n"]), key=lambda f: f["final_return"]["mean"], default=None)
     points = {}
-    for i, method in enumerate(plan.points):
+    for i, method in enumerate(m for m in plan.points if plan.planned(key, m)):
         group = plan.finished(runs, key, method)
         st = group_stats(group)
         rate = st["replans_per_100"]["mean"]
@@ -238,7 +281,12 @@ def _setting(plan: PlansPlan, runs: dict[str, dict[str, Any]], key: str, base: d
             d = bootstrap_diff(st["per_seed"]["final_return"], b["per_seed"]["final_return"])
             vs_plan_base[other] = {**d, "outcome": outcome(d)}
         hs = _h_stats(group) if group else {"n": 0}
+        by_h = {f["H"]: f for f in front if f["n"]}
         points[method] = {
+            "vs_front_paired": front_gap_paired(front, st, seed=i),
+            "vs_H1_paired": _vs_closed_loop(st, by_h.get(1)),
+            # Against fixed H = 5 on the same seed: a seed below it is a collapse to name.
+            "minus_H5_per_seed": per_seed_minus(st, by_h[5]) if 5 in by_h and st["n"] else {},
             "label": method_label(method),
             **st,
             "vs_front": _vs_front(pairs["final_return"], st, seed=i),
@@ -291,6 +339,21 @@ def paper_baselines(plan: PlansPlan, key: str, paper_dir: Path | None) -> dict[s
     return out
 
 
+def _minus_fixed(
+    curves: dict[str, Any], latencies: list[int], method: str, rivals: tuple[str, ...]
+) -> dict[str, Any]:
+    """``method`` minus each rival (final return) at each latency, keyed ``L<latency>:<rival>``."""
+    out = {}
+    for i, lat in enumerate(latencies):
+        for rival in rivals:
+            if method in curves and rival in curves:
+                a = curves[method]["points"][i]["per_seed"]["final_return"]
+                b = curves[rival]["points"][i]["per_seed"]["final_return"]
+                d = bootstrap_diff(a, b)
+                out[f"L{lat}:{rival}"] = {**d, "outcome": outcome(d)}
+    return out
+
+
 def _latency(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
     out = {}
     ada, h1, h10 = plan_method(LATENCY_THRESHOLD), fixed_method(1), fixed_method(10)
@@ -312,20 +375,13 @@ def _latency(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]
                 "points": pts,
                 "loss_at_max_latency": {**d, "outcome": outcome(d)},
             }
-        comps = {}
-        for i, lat in enumerate(plan.latencies):
-            for rival in (h1, h10):
-                if ada in curves and rival in curves:
-                    a = curves[ada]["points"][i]["per_seed"]["final_return"]
-                    b = curves[rival]["points"][i]["per_seed"]["final_return"]
-                    d = bootstrap_diff(a, b)
-                    comps[f"L{lat}:{rival}"] = {**d, "outcome": outcome(d)}
         out[key] = {
             "label": SETTINGS[key].label,
             "seeds": plan.latency_seeds,
             "seeds_finished": sorted(done),  # with latency runs; every point of a curve uses these
             "curves": curves,
-            "adaptiveh_minus_fixed": comps,
+            "adaptiveh_minus_fixed": _minus_fixed(curves, plan.latencies, ada, (h1, h10)),
+            "default_minus_fixed": _minus_fixed(curves, plan.latencies, DEFAULT_METHOD, (h1, h10)),
         }
     return out
 
@@ -336,7 +392,7 @@ def _h_drift(plan: PlansPlan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]
         if slow not in plan.settings or fast not in plan.settings:
             continue
         by_method = {}
-        for method in plan.points:
+        for method in (m for m in plan.points if plan.planned(slow, m) and plan.planned(fast, m)):
             hs = {k: _h_stats(plan.finished(runs, k, method)) for k in (slow, fast)}
             rates = {
                 k: [run_numbers(r)["replans_per_100"] for r in plan.finished(runs, k, method)]
@@ -371,13 +427,19 @@ def plans_verdicts(
         "verdict": _overall(list(comps.values())),
     }
     for method in plan.points:
-        c = {k: s["points"][method]["vs_front"] for k, s in settings.items()}
+        c = {k: s["points"][method]["vs_front"] for k, s in settings.items() if method in s["points"]}
         out[f"above_front:{method}"] = {
             "metric": "as above, one AdaptiveH point",
             "comparisons": c,
             "verdict": _overall(list(c.values())),
         }
     comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v["adaptiveh_minus_fixed"].items()}
+    comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v.get("default_minus_fixed", {}).items()}
+    out["latency_default_vs_fixed"] = {
+        "metric": "final return, AdaptiveH (the default) minus fixed H at each latency",
+        "comparisons": comps,
+        "verdict": _overall(list(comps.values())),
+    }
     out["latency_adaptiveh_vs_fixed"] = {
         "metric": f"final return, AdaptiveH (plan {LATENCY_THRESHOLD}) minus fixed H at each latency",
         "comparisons": comps,

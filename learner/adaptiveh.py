@@ -32,7 +32,13 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
-from learner.plan_tolerance import FixedTolerance, LearnedTolerance, PlanTolerance
+from learner.plan_tolerance import (
+    FixedTolerance,
+    LearnedTolerance,
+    NoiseFloorTolerance,
+    PlanTolerance,
+    narrowest_scale,
+)
 from learner.plans import Plan, PlanChannel, QueuedChannel, opening, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
@@ -53,18 +59,20 @@ def _info_scalars(info: dict) -> dict[str, float]:
 
 def kernels(cfg: AdaptiveHConfig, dim: int) -> tuple[GaussianKernel, PlanTolerance]:
     """(the policy's kernel, the plan tolerance that compares a plan's predicted state with the reached
-    one: the policy's kernel scaled by ``plan_kernel_scale``, or learned from the plan's own gaps)."""
+    one: the policy's kernel narrowed by ``plan_kernel_scale``, widened by the measured sensor noise or
+    not, or learned from the plan's own gaps; only the plan retreat reads it)."""
     for key in ("bandwidth", "plan_kernel_scale", "critic_bandwidth"):
         n = np.size(getattr(cfg, key))
         if getattr(cfg, key) is not None and n not in (1, dim):
             raise ValueError(f"{key}: expected 1 or {dim} values (one per state dimension), got {n}")
     kernel = GaussianKernel(np.asarray(cfg.bandwidth, float), dim)
+    widths = kernel.bandwidth * narrowest_scale(kernel.bandwidth, cfg.plan_kernel_scale)
+    if cfg.retreat_mode != "plan" or cfg.plan_tolerance == "fixed":
+        return kernel, FixedTolerance(GaussianKernel(widths, dim))
     if cfg.plan_tolerance == "learned":
         threshold = retreat_threshold(cfg, kernel)
         return kernel, LearnedTolerance(dim, cfg.h_max, threshold, cfg.plan_false_alarm)
-    return kernel, FixedTolerance(
-        GaussianKernel(kernel.bandwidth * np.asarray(cfg.plan_kernel_scale, float), dim)
-    )
+    return kernel, NoiseFloorTolerance(widths, retreat_threshold(cfg, kernel), cfg.plan_false_alarm)
 
 
 def initial_policy(cfg: AdaptiveHConfig, env: gym.Env, kernel: GaussianKernel) -> RKHSGaussianPolicy:

@@ -13,7 +13,7 @@ Joints = Annotated[tuple[float, ...], Field(min_length=7, max_length=7)]
 """One number per arm joint."""
 Wrench = Annotated[tuple[float, ...], Field(min_length=6, max_length=6)]
 """Force (x, y, z) then torque (x, y, z)."""
-MotionPreset = Literal["static", "slow", "fast"]
+MotionPreset = Literal["static", "slow", "fast", "erratic"]
 """The PyBullet backend's target motions, declared here so reading a config never loads sim; sim's
 ``MotionPreset`` names the same presets (tests/robot_io/test_panda_description.py holds them equal)."""
 

@@ -65,7 +65,7 @@ class StandalonePanda:
     home_q: tuple[float, ...] = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
 
 
-MotionPreset = Literal["static", "slow", "fast"]
+MotionPreset = Literal["static", "slow", "fast", "erratic"]
 
 
 class TargetMotion(Section):
@@ -89,11 +89,13 @@ class TargetMotion(Section):
 
     @staticmethod
     def preset(name: MotionPreset) -> TargetMotion:
-        """``static``, ``slow`` or ``fast``."""
+        """``static``, ``slow``, ``fast`` or ``erratic`` (faster still, and its heading and speed swing
+        within a second: kept apart from the presets the retreat was tuned on)."""
         presets = {
             "static": TargetMotion(speed_min=0.0, speed_max=0.0),
             "slow": TargetMotion(speed_min=0.02, speed_max=0.06, speed_period=10.0, turn_rate=0.5),
             "fast": TargetMotion(speed_min=0.08, speed_max=0.20, speed_period=4.0, turn_rate=1.2),
+            "erratic": TargetMotion(speed_min=0.05, speed_max=0.25, speed_period=1.5, turn_rate=3.0),
         }
         if name not in presets:
             raise ValueError(f"unknown target motion preset {name!r}; choose from {sorted(presets)}")

@@ -66,9 +66,9 @@ def test_every_run_is_in_plan_mode_with_its_own_file(tiny: tuple[Path, dict]) ->
     out, summary = tiny
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     files = sorted((out / "runs").glob("*.json"))
-    # 2 settings x (2 fixed H + 4 AdaptiveH points) x 2 seeds, + latency on cartpole_fast: H=10 at L 0
-    # and H=1, H=10, AdaptiveH 0.8 at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
-    assert len(files) == summary["plan"]["runs_total"] == 24 + 8 + 2
+    # 2 settings x (2 fixed H + 5 AdaptiveH points) x 2 seeds, + latency on cartpole_fast: H=10 at L 0
+    # and H=1, H=10, AdaptiveH 0.8, the default at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
+    assert len(files) == summary["plan"]["runs_total"] == 28 + 10 + 2
     for path in files:
         run = json.loads(path.read_text())
         assert run["global_step"] == STEPS and run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
@@ -84,7 +84,7 @@ def test_every_run_is_in_plan_mode_with_its_own_file(tiny: tuple[Path, dict]) ->
             assert max(run["segments"]["H"]) <= run["config"]["fixed_h"]
             assert "retreat" not in run["segments"]["reason"]
         else:
-            assert run["config"]["retreat"] in ("plan", "local")
+            assert run["config"].get("retreat", "plan") in ("plan", "local")  # unset: plan mode's own
     h1 = json.loads((out / "runs" / f"cartpole_slow__rkhs-h1__s0__{STEPS}.json").read_text())
     assert set(h1["segments"]["H"]) == {1} and h1["plan_channel"]["dropped_planned"] == 0
 
@@ -102,6 +102,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
             "adaptiveh-k0.15",
             "adaptiveh-local",
             "adaptiveh-learned",
+            "adaptiveh-default",
         }
         for p in s["points"].values():
             assert (
@@ -111,6 +112,10 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
             v = p["vs_front"]
             assert v["lo"] <= v["diff"] <= v["hi"] or math.isclose(v["lo"], v["hi"])
             assert v["outcome"] in ("better", "tie", "worse") and v["position"]
+            paired = p["vs_front_paired"]  # each seed against its own front
+            assert set(paired["per_seed"]) == {"0", "1"} and paired["lo"] <= paired["diff"] <= paired["hi"]
+            assert p["vs_H1_paired"]["n_a"] == 2 and p["vs_H1_paired"]["fewer_replans"] >= 1
+            assert set(p["minus_H5_per_seed"]) == {"0", "1"}
     base = on_disk["settings"]["cartpole_fast"]["baselines"]
     assert base["td3"]["seeds"] == [0] and base["td3"]["final_return"]["mean"] == 100.0
     assert on_disk["settings"]["cartpole_slow"]["baselines"] == {}
@@ -127,6 +132,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
         "cartpole_fast:adaptiveh-k0.15:td3-h5",
         "cartpole_fast:adaptiveh-local:td3-h5",
         "cartpole_fast:adaptiveh-learned:td3-h5",
+        "cartpole_fast:adaptiveh-default:td3-h5",
     }
     lat = on_disk["latency"]
     assert list(lat) == ["cartpole_fast"]
@@ -134,7 +140,14 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
         assert [p["latency_steps"] for p in c["points"]] == [0, 2] and all(p["n"] == 2 for p in c["points"])
     drift = on_disk["h_drift"]["cartpole_slow-cartpole_fast"]["methods"]["adaptiveh-plan0.8"]
     assert drift["slow"]["n"] == 2 and "mean_H" in drift["slow_minus_fast"]
-    for claim in ("above_fixed_h_front", "latency_adaptiveh_vs_fixed", "h_narrows_when_faster"):
+    rivals = {f"L{lat}:rkhs-h{h}" for lat in (0, 2) for h in (1, 10)}
+    assert set(lat["cartpole_fast"]["default_minus_fixed"]) == rivals
+    for claim in (
+        "above_fixed_h_front",
+        "latency_adaptiveh_vs_fixed",
+        "latency_default_vs_fixed",
+        "h_narrows_when_faster",
+    ):
         assert on_disk["verdicts"][claim]["verdict"].split(" (")[0] in (
             "confirmed",
             "partly confirmed",
@@ -209,9 +222,16 @@ def test_front_gap_interpolates_in_log_rate() -> None:
 
 def test_plan_order_and_shape() -> None:
     plan = build_plans_plan()
-    # front (6) + points (3 thresholds, 2 kernel scales, local, learned), latency sweep, and TD3/SAC at
-    # H = 10 on cartpole_fast and reach_slow, 3 seeds
-    assert len(plan.runs) == len(set(r.name for r in plan.runs)) == 5 * 5 * 13 + 5 * 2 * 3 * 3 + 3 * 2 * 2
+    # front (6) + points (3 thresholds, 2 kernel scales, local, learned, the default) on 5 settings, the
+    # front and the default alone on the held-out one, the latency sweep (H = 1, H = 10, 0.8, the default),
+    # and TD3/SAC at H = 10 on cartpole_fast and reach_slow, 3 seeds
+    assert (
+        len(plan.runs)
+        == len(set(r.name for r in plan.runs))
+        == 5 * 5 * 14 + 5 * 7 + 5 * 2 * 3 * 4 + 3 * 2 * 2
+    )
+    held_out = {r.method for r in plan.runs if r.env == "reach_erratic"}
+    assert held_out == {f"rkhs-h{h}" for h in (1, 2, 5, 10, 20, 50)} | {"adaptiveh-default"}
     kind = {(False, False): "main", (True, False): "latency", (False, True): "baselines"}
     order = [(r.seed, kind[bool(r.latency), baseline_of(r.method) is not None]) for r in plan.runs]
     # seed by seed; each seed's latency runs, then its baselines, right after the next seed's front and points
@@ -230,6 +250,7 @@ def test_plan_order_and_shape() -> None:
     assert first.index("reach_slow") > max(i for i, e in enumerate(first) if not e.startswith("reach"))
     assert {r.steps for r in plan.runs if r.env.startswith("reach")} == {10_000}
     assert {r.env_kwargs["motion"] for r in plan.runs if r.env == "reach_fast"} == {"fast"}
+    assert {r.env_kwargs["motion"] for r in plan.runs if r.env == "reach_erratic"} == {"erratic"}
     with pytest.raises(ValueError, match="unknown setting"):
         build_plans_plan(settings=["nope"])
     # Baselines only where their settings are planned, at most the experiment's seeds, none on request.
@@ -252,8 +273,19 @@ def test_method_names_of_the_baselines_in_plan_mode() -> None:
     assert method_config("rkhs-h5") == ("rkhs", {"execution": "plan", "fixed_h": 5})
     assert method_config("adaptiveh-k0.15") == (
         "adaptiveh",
-        {"execution": "plan", "retreat": "plan", "plan_kernel_scale": 0.15},
+        {"execution": "plan", "retreat": "plan", "plan_kernel_scale": 0.15, "plan_tolerance": "fixed"},
     )
+    assert method_config("adaptiveh-plan0.8") == (
+        "adaptiveh",
+        {
+            "execution": "plan",
+            "retreat": "plan",
+            "retreat_threshold": 0.8,
+            "plan_tolerance": "fixed",
+            "plan_kernel_scale": 1.0,
+        },
+    )
+    assert method_config("adaptiveh-default") == ("adaptiveh", {"execution": "plan", "retreat": None})
     assert method_label("adaptiveh-k0.15") == "AdaptiveH, plan retreat, kernel x0.15"
     assert method_config("adaptiveh-learned") == (
         "adaptiveh",

@@ -140,8 +140,15 @@ def test_the_retreat_follows_the_execution_unless_set():
     assert (closed.retreat.mode, planned.retreat.mode) == ("local", "plan")
     pinned = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "retreat": "local"})
     assert pinned.retreat.mode == "local"
-    narrow = make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 0.1})
+    narrow = make_agent(
+        "adaptiveh",
+        _cartpole(),
+        0,
+        {"execution": "plan", "plan_kernel_scale": 0.1, "plan_tolerance": "fixed"},
+    )
     np.testing.assert_allclose(narrow.retreat.plan_tolerance.kernel.bandwidth, narrow.kernel.bandwidth * 0.1)
+    default = planned.retreat.plan_tolerance  # the noise floor over 0.15 of the policy's kernel
+    np.testing.assert_allclose(default.width2(), (planned.kernel.bandwidth * 0.15) ** 2)
     with pytest.raises(ValueError, match="plan_kernel_scale"):
         make_agent("adaptiveh", _cartpole(), 0, {"execution": "plan", "plan_kernel_scale": 2.0})
     with pytest.raises(ValueError, match="plan_kernel_scale: expected 1 or 4 values"):
