@@ -16,6 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from experiments.plans_tables import default_table
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- table: (?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- end table -->)", re.S)
@@ -132,11 +134,17 @@ def robot_io_tick(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plans_default(data: dict[str, Any]) -> str:
+    """``results/plans/summary.json``: the default plan retreat per setting against the issue's goals."""
+    return "\n".join(default_table(data)) + "\n"
+
+
 TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "robot_io_tick": ("results/robot_io_bench.json", robot_io_tick),
     "sim_camera": ("results/vision_bench.json", sim_camera),
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
+    "plans_default": ("results/plans/summary.json", plans_default),
 }
 
 

@@ -180,11 +180,17 @@ def test_noise_floor_is_the_fixed_kernel_while_the_sensor_is_quiet():
     assert check.plan_tolerance.value(3, np.zeros(DIM), gap) == pytest.approx(expected)
 
 
-def test_noise_floor_a_changed_world_is_a_retreat_within_the_stated_ticks():
-    rng = np.random.default_rng(6)
+def _warmed(seed: int, plans: int) -> tuple[np.random.Generator, RetreatCheck]:
+    """A noise-floor check that has seen ``plans`` plans of a world at rest through the noisy sensor."""
+    rng = np.random.default_rng(seed)
     check = _floor_check()
-    for _ in range(200):
+    for _ in range(plans):
         _noisy_plan(check, rng)
+    return rng, check
+
+
+def test_noise_floor_a_changed_world_is_a_retreat_within_the_stated_ticks():
+    rng, check = _warmed(6, 200)
     tolerance = check.plan_tolerance
     width = np.sqrt(tolerance.width2())
     for dim in range(DIM):
@@ -208,10 +214,7 @@ def test_noise_floor_a_changed_world_is_a_retreat_within_the_stated_ticks():
 
 
 def test_noise_floor_nan_and_missing_states_are_refused_not_learned_nor_retreated_on():
-    rng = np.random.default_rng(7)
-    check = _floor_check()
-    for _ in range(30):
-        _noisy_plan(check, rng)
+    rng, check = _warmed(7, 30)
     tolerance = check.plan_tolerance
     before = tolerance.state_dict()
     bad = np.full(DIM, np.nan)

@@ -57,7 +57,7 @@ def test_actions_are_bounded_to_5cm(env):
 def test_target_speed_stays_bounded_and_varies():
     from sim.panda_scene import TargetState
 
-    for name in ("slow", "fast"):
+    for name in ("slow", "fast", "erratic"):
         motion = TargetMotion.preset(name)
         state = TargetState.start(motion, seed=3)
         lo, hi = (np.asarray(b) for b in motion.box)
@@ -69,6 +69,25 @@ def test_target_speed_stays_bounded_and_varies():
         speeds = np.array(speeds)
         assert speeds.max() <= motion.speed_max + 1e-9 and speeds.min() >= 0.0
         assert speeds.max() - speeds.min() > 0.5 * (motion.speed_max - motion.speed_min)
+
+
+def test_the_erratic_target_turns_and_changes_speed_faster_than_the_fast_one():
+    """The held-out preset of the plans bench is harder than the ones the retreat was tuned on."""
+    from sim.panda_scene import TargetState
+
+    def swings(name: str) -> tuple[float, float]:
+        state = TargetState.start(TargetMotion.preset(name), seed=5)
+        turns, accel, v = [], [], state.velocity.copy()
+        for _ in range(3000):
+            heading = state.heading.copy()
+            state.advance(0.01)
+            turns.append(np.arccos(np.clip(heading @ state.heading, -1, 1)))
+            accel.append(np.linalg.norm(state.velocity - v) / 0.01)
+            v = state.velocity.copy()
+        return float(np.mean(turns)), float(np.median(accel))
+
+    (turn_fast, accel_fast), (turn_erratic, accel_erratic) = swings("fast"), swings("erratic")
+    assert turn_erratic > 1.5 * turn_fast and accel_erratic > 1.5 * accel_fast
 
 
 def test_the_plan_model_moves_a_diagonal_step_as_far_as_the_arm_does():
