@@ -74,7 +74,9 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
 # old_agent: the stack's agent before it took reach.yaml's (kernel 0.5 on the relative coordinates, no
 # step or exploration schedules), kept for comparison. tiny_camera (issue #34): the shipped stack with
-# the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz.
+# the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. default_tolerance (issue
+# #33): the shipped agent once the plan retreat's default tolerance replaced the stack's own kernel
+# (0.083), beside the shipped rows measured before it.
 VARIANTS = (
     "",
     "old_agent",
@@ -84,6 +86,7 @@ VARIANTS = (
     "mean_limit",
     "again",
     "tiny_camera",
+    "default_tolerance",
 )
 TINY_CAMERA = {
     "rate_hz": 15.0,
@@ -102,7 +105,7 @@ def apply_variant(variant: str, base: dict[str, Any]) -> None:
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if variant in ("", "again", "tiny_camera"):
+    if variant in ("", "again", "tiny_camera", "default_tolerance"):
         return agent
     if variant == "old_agent":
         return {**agent, **OLD_AGENT}
