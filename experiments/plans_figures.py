@@ -7,9 +7,18 @@ from pathlib import Path
 from typing import Any
 
 from experiments.figures import _kilo_steps, _save
-from experiments.plans import PlansPlan
+from experiments.plans import DEFAULT_METHOD, PlansPlan
 
 POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "black", "tab:gray", "tab:green", "tab:pink"]
+DEFAULT_COLOR = "gold"  # the default (issue #33) stands out in every panel
+
+
+def point_colors(methods: list[str]) -> list[str]:
+    """One colour per method: the default gold, the others in order."""
+    others = iter(POINT_COLORS * 2)
+    return [DEFAULT_COLOR if m == DEFAULT_METHOD else next(others) for m in methods]
+
+
 BASE_STYLE = {"td3": ("tab:blue", "s"), "ddpg": ("tab:cyan", "D"), "sac": ("tab:olive", "P")}
 
 
@@ -40,7 +49,7 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
                 fontsize=7,
                 color="tab:purple",
             )
-    for color, p in zip(POINT_COLORS, s["points"].values(), strict=False):
+    for color, p in zip(point_colors(list(s["points"])), s["points"].values(), strict=True):
         if not p["n"]:
             continue
         ax.errorbar(
@@ -51,6 +60,7 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
             fmt="*",
             markersize=11,
             color=color,
+            mec="black" if color == DEFAULT_COLOR else color,
             capsize=2,
             label=f"{p['label']}: {p['vs_front']['position']}",
         )
@@ -130,7 +140,9 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     lat = summary["latency"]
     fig, axes = plt.subplots(1, max(1, len(lat)), figsize=(5.5 * max(1, len(lat)), 4), squeeze=False)
     for ax, v in zip(axes[0], lat.values(), strict=False):
-        for color, c in zip(("tab:purple", "tab:blue", "tab:red"), v["curves"].values(), strict=False):
+        colors = ["tab:purple", "tab:blue", "tab:red", "tab:orange"]
+        colors = [DEFAULT_COLOR if m == DEFAULT_METHOD else colors[i] for i, m in enumerate(v["curves"])]
+        for color, c in zip(colors, v["curves"].values(), strict=True):
             pts = [p for p in c["points"] if p["n"]]
             if not pts:
                 ax.plot([], [], color=color, label=f"{c['label']} (missing)")
@@ -159,7 +171,7 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     for row, (pair, v) in zip(axes, drift.items(), strict=False):
         ax_t, ax_b = row
         labels, slow_m, fast_m, slow_e, fast_e = [], [], [], [[], []], [[], []]
-        for color, m in zip(POINT_COLORS, v["methods"].values(), strict=False):
+        for color, m in zip(point_colors(list(v["methods"])), v["methods"].values(), strict=True):
             for side, style in (("slow", "-"), ("fast", "--")):
                 evo = m[side].get("evolution")
                 if evo and evo["steps"]:
