@@ -3,9 +3,8 @@ widened by the measured noise, or a tolerance learned from how far predictions n
 
 The plan retreat's kernel term ``k(ŝ_i, s_i)`` compares the state a plan predicted ``i`` steps ahead with
 the state reached (both normalised). :class:`FixedTolerance` is the policy's kernel with its widths scaled
-by a per-task constant (``plan_kernel_scale``). A constant is wrong wherever the sensor's noise or the
-model's error is not what it was tuned for: below the noise it fires on noise, above the task's
-tolerance it misses a changed world.
+by ``plan_kernel_scale`` on its narrowest dimensions (:func:`narrowest_scale`). Alone it is wrong wherever
+the sensor is noisier than the kernel is narrow: it fires on noise.
 
 :class:`NoiseFloorTolerance` keeps the fixed kernel as the task's tolerance and widens it by the
 sensor's noise, measured where a plan can tell it from the model's error: along one plan the gap
@@ -17,9 +16,8 @@ a model's error accumulates smoothly (increments positively correlated or consta
 
 with ``w`` the fixed kernel's widths and ``κ`` as below (``2σ²``: the gap's variance under noise alone). A
 quiet sensor leaves the fixed kernel; a noisy one retreats on at most about ``α`` of ticks whose gap is
-noise; a model that errs the same way every time still makes the plan stale as its error accumulates.
-(The gap one step into a plan, tried first as the floor, counts a step of model error as noise: NS
-Reach's plans then ran long enough to collapse 3 of 7 runs.)
+noise; a model that errs the same way every time still makes the plan stale as its error accumulates
+(so the gap one step into a plan, which holds a step of that error, is not the floor: docs/learner.md).
 
 :class:`LearnedTolerance` standardises the gap by its own history instead. Per plan step ``i`` and state
 dimension ``d`` it keeps a running mean square ``σ̂²_{i,d}`` of the gap ``s − ŝ``, and
