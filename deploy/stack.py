@@ -53,19 +53,36 @@ PART_COMMANDS = {
 
 def running_parts(config: str | Path) -> dict[str, int]:
     """pid of every running ``deploy.cli <part command> --config <config>`` process, by part command
-    (Linux: reads /proc): what a stack, or its orphans, has running on this machine."""
+    (Linux: reads /proc): what a stack, or its orphans, has running on this machine. A process whose
+    parent runs the same part is that part's fork (a child between fork and exec still has the parent's
+    command line), not the part."""
     commands, found = set(PART_COMMANDS.values()), {}
     for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        words = [a.decode(errors="replace") for a in args]
-        if str(config) in words and "deploy.cli" in words:
-            command = words[words.index("deploy.cli") + 1]
-            if command in commands:
-                found[command] = int(pid)
+        command = _part_command(int(pid), str(config))
+        if command in commands and _part_command(_parent(int(pid)), str(config)) != command:
+            found[command] = int(pid)
     return found
+
+
+def _part_command(pid: int, config: str) -> str | None:
+    """The part command of ``pid`` if it runs ``deploy.cli <command> ... <config>``; None otherwise."""
+    try:
+        args = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return None
+    words = [a.decode(errors="replace") for a in args]
+    if config in words and "deploy.cli" in words and words.index("deploy.cli") + 1 < len(words):
+        return words[words.index("deploy.cli") + 1]
+    return None
+
+
+def _parent(pid: int) -> int:
+    """``pid``'s parent (0 when it is gone): the field after the ``(comm)`` of /proc/<pid>/stat."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0
+    return int(stat.rsplit(")", 1)[1].split()[1])
 
 
 def private_log(path: Path, append: bool) -> IO[str]:

@@ -97,3 +97,25 @@ def test_the_run_ends_when_a_part_has_used_its_restarts(tmp_path):
     assert summary["restarts"] == {"monitor": 2} and summary["gave_up"] == "monitor"
     assert "used its 2 restarts" in (tmp_path / "logs" / "monitor.log").read_text() + up.stderr + up.stdout
     assert not parts_of(path)
+
+
+def test_a_parts_fork_is_not_the_part(tmp_path):
+    """A child between fork and exec carries its parent's command line (a part that runs ldconfig, say):
+    ``running_parts`` names the part, not its fork (the e-stop test once read a fork as a restart)."""
+    config = tmp_path / "sim.yaml"
+    code = "import os, time\nif os.fork() == 0:\n    time.sleep(30)\n    os._exit(0)\ntime.sleep(30)"
+    part = subprocess.Popen([sys.executable, "-c", code, "deploy.cli", "vision", "--config", str(config)])
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            children = Path(f"/proc/{part.pid}/task/{part.pid}/children").read_text().split()
+            if children:
+                break
+            time.sleep(0.05)
+        assert children, "the part did not fork"
+        assert parts_of(config) == {"vision": part.pid}
+    finally:
+        for pid in children:
+            os.kill(int(pid), signal.SIGKILL)
+        part.kill()
+        part.wait()
