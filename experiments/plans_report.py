@@ -100,6 +100,12 @@ def group_stats(group: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def interp_log_rate(rates: np.ndarray, rets: np.ndarray, at: float) -> float:
+    """The front's return at re-plan rate ``at``: linear in log rate, clamped at the front's ends."""
+    order = np.argsort(rates)
+    return float(np.interp(np.log(at), np.log(rates[order]), rets[order]))
+
+
 def front_gap(
     front: list[tuple[list[float], list[float]]],
     point: tuple[list[float], list[float]],
@@ -125,14 +131,10 @@ def front_gap(
             "extrapolated": None,
         }
 
-    def interp(rates: np.ndarray, rets: np.ndarray, at: float) -> float:
-        order = np.argsort(rates)
-        return float(np.interp(np.log(at), np.log(rates[order]), rets[order]))
-
     mean_rates = np.array([g[0].mean() for g in groups])
     mean_rets = np.array([g[1].mean() for g in groups])
     at = float(pr.mean())
-    front_at = interp(mean_rates, mean_rets, at)
+    front_at = interp_log_rate(mean_rates, mean_rets, at)
     rng = np.random.default_rng(seed)
     boot_front = []
     for rates, rets in groups:  # the same seed draw for a group's rate and return
@@ -143,7 +145,7 @@ def front_gap(
     diffs = np.array(
         [
             b_ret[b]
-            - interp(
+            - interp_log_rate(
                 np.array([f[0][b] for f in boot_front]), np.array([f[1][b] for f in boot_front]), b_rate[b]
             )
             for b in range(n_boot)
@@ -175,19 +177,22 @@ def front_gap_paired(front: list[dict[str, Any]], point: dict[str, Any], seed: i
                 rates.append(f["per_seed"]["replans_per_100"][j])
                 rets.append(f["per_seed"]["final_return"][j])
         if len(rates) >= 2:
-            order = np.argsort(rates)
-            at = np.log(point["per_seed"]["replans_per_100"][i])
-            front_at = np.interp(at, np.log(np.asarray(rates)[order]), np.asarray(rets)[order])
-            diffs[s] = float(point["per_seed"]["final_return"][i] - front_at)
+            at = point["per_seed"]["replans_per_100"][i]
+            front_at = interp_log_rate(np.asarray(rates), np.asarray(rets), at)
+            diffs[s] = point["per_seed"]["final_return"][i] - front_at
     m = bootstrap_mean(list(diffs.values()), seed=seed)
     d = {"diff": m["mean"], "lo": m["lo"], "hi": m["hi"], "n_a": m["n"], "n_b": m["n"]}
     return {**d, "outcome": outcome(d), "per_seed": {str(k): v for k, v in diffs.items()}}
 
 
+def finals_by_seed(group: dict[str, Any]) -> dict[int, float]:
+    """A group's final return on each seed it ran."""
+    return dict(zip(group["seeds"], group["per_seed"]["final_return"], strict=True))
+
+
 def per_seed_minus(point: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
     """``point − other`` final return on each seed both ran."""
-    a = dict(zip(point["seeds"], point["per_seed"]["final_return"], strict=True))
-    b = dict(zip(other["seeds"], other["per_seed"]["final_return"], strict=True))
+    a, b = finals_by_seed(point), finals_by_seed(other)
     return {str(k): a[k] - b[k] for k in sorted(set(a) & set(b))}
 
 
@@ -196,10 +201,7 @@ def _vs_closed_loop(point: dict[str, Any], h1: dict[str, Any] | None) -> dict[st
     re-plans it needed."""
     if h1 is None or not point["n"]:
         return None
-    d = bootstrap_paired_diff(
-        dict(zip(point["seeds"], point["per_seed"]["final_return"], strict=True)),
-        dict(zip(h1["seeds"], h1["per_seed"]["final_return"], strict=True)),
-    )
+    d = bootstrap_paired_diff(finals_by_seed(point), finals_by_seed(h1))
     ratio = h1["replans_per_100"]["mean"] / point["replans_per_100"]["mean"]
     return {**d, "outcome": outcome(d), "fewer_replans": ratio}
 

@@ -85,14 +85,14 @@ def kappa2(dim: int, threshold: float, false_alarm: float) -> float:
     return float(chi2.ppf(1.0 - false_alarm, dim) / (2.0 * math.log(1.0 / threshold)))
 
 
-def squared_gap(dim: int, predicted: np.ndarray, reached: np.ndarray) -> np.ndarray:
-    """``(s − ŝ)²`` per dimension; a clear error for a wrong shape or a non-finite value."""
+def plan_gap(dim: int, predicted: np.ndarray, reached: np.ndarray) -> np.ndarray:
+    """``s − ŝ`` per dimension; a clear error for a wrong shape or a non-finite value."""
     p, r = np.asarray(predicted, float), np.asarray(reached, float)
     if p.shape != (dim,) or r.shape != (dim,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(r))):
         raise ValueError(
             f"plan tolerance: predicted and reached must be {dim} finite values, got {p} and {r}"
         )
-    return (r - p) ** 2
+    return r - p
 
 
 class NoiseFloorTolerance:
@@ -126,13 +126,12 @@ class NoiseFloorTolerance:
         return self.widths2 if noise2 is None else self.widths2 + 2.0 * self.kappa2 * noise2
 
     def value(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float:
-        gap2 = squared_gap(self.dim, predicted, reached)
-        return float(np.exp(-0.5 * np.sum(gap2 / self.width2())))
+        gap = plan_gap(self.dim, predicted, reached)
+        return float(np.exp(-0.5 * np.sum(gap * gap / self.width2())))
 
     def observe(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> None:
         """Learn from this tick's gap if the tick before it was the same plan's previous one."""
-        squared_gap(self.dim, predicted, reached)  # the error for a bad state, before anything is kept
-        gap = np.asarray(reached, float) - np.asarray(predicted, float)
+        gap = plan_gap(self.dim, predicted, reached)  # the error for a bad state, before anything is kept
         last, self._last = self._last, (ahead, gap, None)
         if last is None or ahead != last[0] + 1:
             return  # a new plan (or a skipped tick): the chain of increments starts again
@@ -193,7 +192,7 @@ class LearnedTolerance:
         return np.maximum(self.mean_square[j] * (i / j), self.floor2)
 
     def value(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float:
-        gap2 = squared_gap(self.dim, predicted, reached)
+        gap2 = plan_gap(self.dim, predicted, reached) ** 2
         s2 = self.spread2(ahead)
         if s2 is None:
             return 1.0
@@ -201,7 +200,7 @@ class LearnedTolerance:
 
     def observe(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> None:
         """Learn this step's gap (clipped at the spread's ``1 − α`` quantile once a spread is known)."""
-        gap2 = squared_gap(self.dim, predicted, reached)
+        gap2 = plan_gap(self.dim, predicted, reached) ** 2
         s2 = self.spread2(ahead)
         if s2 is not None:
             gap2 = np.minimum(gap2, self.clip * s2)
