@@ -435,18 +435,16 @@ def plans_verdicts(
             "comparisons": c,
             "verdict": _overall(list(c.values())),
         }
-    comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v["adaptiveh_minus_fixed"].items()}
-    comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v.get("default_minus_fixed", {}).items()}
-    out["latency_default_vs_fixed"] = {
-        "metric": "final return, AdaptiveH (the default) minus fixed H at each latency",
-        "comparisons": comps,
-        "verdict": _overall(list(comps.values())),
-    }
-    out["latency_adaptiveh_vs_fixed"] = {
-        "metric": f"final return, AdaptiveH (plan {LATENCY_THRESHOLD}) minus fixed H at each latency",
-        "comparisons": comps,
-        "verdict": _overall(list(comps.values())),
-    }
+    for claim, key, who in (
+        ("latency_adaptiveh_vs_fixed", "adaptiveh_minus_fixed", f"AdaptiveH (plan {LATENCY_THRESHOLD})"),
+        ("latency_default_vs_fixed", "default_minus_fixed", "AdaptiveH (the default)"),
+    ):
+        comps = {f"{k}:{c}": d for k, v in latency.items() for c, d in v[key].items()}
+        out[claim] = {
+            "metric": f"final return, {who} minus fixed H at each latency",
+            "comparisons": comps,
+            "verdict": _overall(list(comps.values())),
+        }
     comps = {
         f"{pair}:{m}:{s}": d
         for pair, v in drift.items()

@@ -142,6 +142,12 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
     assert drift["slow"]["n"] == 2 and "mean_H" in drift["slow_minus_fast"]
     rivals = {f"L{lat}:rkhs-h{h}" for lat in (0, 2) for h in (1, 10)}
     assert set(lat["cartpole_fast"]["default_minus_fixed"]) == rivals
+    for claim, key in (
+        ("latency_adaptiveh_vs_fixed", "adaptiveh_minus_fixed"),
+        ("latency_default_vs_fixed", "default_minus_fixed"),
+    ):  # each verdict reads its own method's comparisons
+        own = {f"cartpole_fast:{c}": d for c, d in lat["cartpole_fast"][key].items()}
+        assert on_disk["verdicts"][claim]["comparisons"] == own, claim
     for claim in (
         "above_fixed_h_front",
         "latency_adaptiveh_vs_fixed",
