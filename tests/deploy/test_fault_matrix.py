@@ -91,10 +91,19 @@ class Run:
         time.sleep(max(0.0, t1 + 0.3 - time.time()))
         late = [s for s in self.since(m.STATE, 0) if t0 <= s.stamp <= t1]
         assert late, "no robot state in the window"
-        assert {s.mode for s in late} == {m.RobotState.RUNNING}, {m.label(s, "mode") for s in late}
+        modes = {m.label(s, "mode") for s in late}
+        assert modes == {"running"}, f"modes {modes}; {self.why_held(t0, t1)}"
         # A re-plan can leave a tick between two plans (measured: 75-90 % of ticks play a plan action).
         playing = sum(s.played_chunk >= 0 for s in late) / len(late)
         assert playing >= 0.6, f"only {playing:.0%} of {len(late)} ticks played a plan"
+
+    def why_held(self, t0: float, t1: float) -> str:
+        """The safety events around [t0, t1] and the end of robot-io's log, for a failure's message."""
+        events = [
+            f"{e.stamp - t0:+.2f} s {m.label(e, 'kind')}: {e.detail}"
+            for e in self.since(m.EVENTS_SAFETY, t0 - 2.0, t1 + 2.0)
+        ]
+        return f"safety events (s from t0): {events}; robot-io log:\n{self.log_tail('robot_io')}"
 
     def wait_playing(self, timeout: float = 60.0) -> None:
         """The arm runs and plays plans now (a fault an earlier test made may leave it held a while)."""
