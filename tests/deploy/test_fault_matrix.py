@@ -86,16 +86,48 @@ class Run:
         assert {s.mode for s in late} == {m.RobotState.HELD}, {m.label(s, "mode") for s in late}
         assert max(abs(v) for s in late for v in s.dq) < STILL_RAD_S
 
-    def assert_playing(self, t0: float, t1: float) -> None:
-        """The arm ran and played plans through [t0, t1] (waits for t1 to pass)."""
+    def assert_playing(self, t0: float, t1: float) -> bool:
+        """The arm ran and played plans through [t0, t1] (waits for t1 to pass). A watchdog hold while the
+        actor waits for a target is the camera's doing, not the fault's: allowed, but then the share of
+        ticks that played a plan says nothing about the fault and is not judged (False)."""
         time.sleep(max(0.0, t1 + 0.3 - time.time()))
         late = [s for s in self.since(m.STATE, 0) if t0 <= s.stamp <= t1]
         assert late, "no robot state in the window"
         modes = {m.label(s, "mode") for s in late}
-        assert modes == {"running"}, f"modes {modes}; {self.why_held(t0, t1)}"
+        holds = self.holds(t0, t1)
+        unexplained = [round(h - t0, 2) for h in holds if not self.target_wait(h)]
+        assert modes <= {"running", "held"} and not unexplained, (
+            f"modes {modes}, holds not waiting for a target at {unexplained} s; {self.why_held(t0, t1)}"
+        )
+        if holds:
+            return False
         # A re-plan can leave a tick between two plans (measured: 75-90 % of ticks play a plan action).
         playing = sum(s.played_chunk >= 0 for s in late) / len(late)
         assert playing >= 0.6, f"only {playing:.0%} of {len(late)} ticks played a plan"
+        return True
+
+    def holds(self, t0: float, t1: float) -> list[float]:
+        """When each run of held states that overlaps [t0, t1] began."""
+        runs: list[list[float]] = []  # [began, last held stamp]
+        held_before = False
+        for s in self.since(m.STATE, 0):
+            held = s.mode == m.RobotState.HELD
+            if held and not held_before:
+                runs.append([s.stamp, s.stamp])
+            elif held:
+                runs[-1][1] = s.stamp
+            held_before = held
+        return [began for began, last in runs if began <= t1 and last >= t0]
+
+    def target_wait(self, began: float) -> bool:
+        """A hold that began while the actor waited for a target: the last plan before it was the stay plan
+        sent when the target was lost, or the plan that ended it opens an episode (the actor waits for a
+        target seen after the reset, and robot-io counts the reset as a command: the watchdog holds)."""
+        chunks = self.since(m.CMD_CHUNK, 0)
+        before = [c for c in chunks if c.stamp <= began]
+        after = [c for c in chunks if c.stamp > began]
+        lost = bool(before) and before[-1].opened_by == m.ActionChunk.TARGET_LOST
+        return lost or (bool(after) and after[0].opened_by == m.ActionChunk.FIRST)
 
     def why_held(self, t0: float, t1: float) -> str:
         """The safety events around [t0, t1] and the end of robot-io's log, for a failure's message."""
@@ -164,10 +196,14 @@ def _pause(pid: int, seconds: float) -> tuple[float, float]:
 
 def test_01_stopped_learner_the_actor_goes_on_planning_then_learning_resumes(run: Run) -> None:
     """The actor beside the arm plans from the snapshot it has: a stopped learner stops nothing."""
-    run.wait_playing()
     pid = run.pids()["learn"]
-    t0, t1 = _pause(pid, 3.0)
-    run.assert_playing(t0 + 0.5, t1)
+    for _ in range(3):  # until a pause the camera did not interrupt (a target lost under load)
+        run.wait_playing()
+        t0, t1 = _pause(pid, 3.0)
+        if run.assert_playing(t0 + 0.5, t1):
+            break
+    else:
+        pytest.fail("the target was lost in each of 3 pauses: the learner's stop could not be judged")
     run.wait_learning(t1)
     assert run.pids()["learn"] == pid, f"learn was restarted; its log:\n{run.log_tail('learner')}"
 
