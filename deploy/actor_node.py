@@ -132,6 +132,7 @@ class ActorNode(Node):
         plan: Plan | None = None
         played = length = 0
         opened_by = "first"
+        tick = None  # of ``obs``: the plan model learns from consecutive ticks only (an outage skips some)
         while not self.stopping:
             # A plan is made from the newest tick only: ticks that played while this process was held up
             # (a stall, a loaded machine) are streamed first, never planned from.
@@ -142,6 +143,9 @@ class ActorNode(Node):
                 self._plans = recent | {plan.plan_id: plan}
                 self.env.send(plan)
             step = self.env.advance()
+            if step.plan_id != -1 and tick is not None and step.info.get("tick") == tick + 1:
+                self.actor.observe(obs, step.action, step.obs)
+            tick = step.info.get("tick")
             length += 1
             stat, end = self._judge(plan, step, length, played)
             played += plan is not None and step.plan_id == plan.plan_id

@@ -98,6 +98,9 @@ PLAN_KERNEL = {**FIXED, "plan_kernel_scale": 1.0}
 # The library's defaults in plan mode (the plan retreat, its threshold and tolerance as AdaptiveHConfig has
 # them): one configuration for every setting and the stack (issue #33).
 DEFAULT_METHOD = "adaptiveh-default"
+# The default with the plan model corrected online by its own one-step residuals (``plan_model:
+# corrected``, ``learner/plan_model.py``): the systematic part of the prediction gap no longer counts.
+CORRECTED_METHOD = "adaptiveh-corrected"
 # The plan retreat whose tolerance is learned from the plan's own prediction gaps (``plan_tolerance:
 # learned``, ``learner/plan_tolerance.py``), at the default threshold: no per-task constant.
 LEARNED_METHOD = "adaptiveh-learned"
@@ -145,6 +148,8 @@ def method_config(method: str) -> tuple[str, dict[str, Any]]:
         return "adaptiveh", {"execution": "plan", "retreat": None}
     if method == LEARNED_METHOD:
         return "adaptiveh", {"execution": "plan", "retreat": "plan", "plan_tolerance": "learned"}
+    if method == CORRECTED_METHOD:
+        return "adaptiveh", {"execution": "plan", "retreat": None, "plan_model": "corrected"}
     base = baseline_of(method)
     if base is not None:
         return base[0], {"plan_h": base[1]}
@@ -165,6 +170,8 @@ def method_label(method: str) -> str:
         return "AdaptiveH, plan retreat, learned tolerance"
     if method == DEFAULT_METHOD:
         return "AdaptiveH, default (noise-floor tolerance)"
+    if method == CORRECTED_METHOD:
+        return "AdaptiveH, default + plan model corrected online"
     base = baseline_of(method)
     if base is not None:
         algo, h = base
@@ -265,7 +272,7 @@ def build_plans_plan(
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
     points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales] + [LOCAL_METHOD]
     points += [LEARNED_METHOD] if learned else []
-    points += [DEFAULT_METHOD]
+    points += [DEFAULT_METHOD, CORRECTED_METHOD]
     front = [fixed_method(h) for h in front_h]
     lat_settings = [k for k in LATENCY_SETTINGS if k in keys]
     lat_methods = [fixed_method(h) for h in LATENCY_H] + [plan_method(LATENCY_THRESHOLD), DEFAULT_METHOD]
@@ -286,7 +293,7 @@ def build_plans_plan(
         spec(k, m, s)
         for s in range(n_seeds)
         for k in cheap_first
-        for m in front + ([DEFAULT_METHOD] if k in HELD_OUT else points)
+        for m in front + ([DEFAULT_METHOD, CORRECTED_METHOD] if k in HELD_OUT else points)
     ]
     have = {r.name for r in main_runs}
     lat_runs = []

@@ -10,8 +10,6 @@ from the same config and env as the learner's, so the snapshot carries only what
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import gymnasium as gym
 import numpy as np
 
@@ -19,6 +17,7 @@ from learner.adaptiveh import FIELD_BUDGET, initial_policy, kernels, retreat_thr
 from learner.config import AdaptiveHConfig
 from learner.dictionary import RKHSFunction
 from learner.normalizer import StateNormalizer
+from learner.plan_model import plan_model
 from learner.plans import Plan, sample_plan
 from learner.retreat import plan_statistic
 from learner.snapshot import PolicySnapshot
@@ -31,13 +30,14 @@ class Actor:
         model = getattr(env.unwrapped, "predict_next", None)
         if model is None:
             raise ValueError(f"an actor needs the env's world model; {type(env.unwrapped).__name__} has none")
-        self.model: Callable[[np.ndarray, np.ndarray], np.ndarray] = model
         self.config = config
         self.normalize = StateNormalizer.for_env(env)
         self.state_dim = len(self.normalize.centre)
         self.kernel, self.plan_tolerance = kernels(config, self.state_dim)
         self.policy = initial_policy(config, env, self.kernel)
         self.action_dim = len(self.policy.low)
+        dims = (self.state_dim, self.action_dim)
+        self.model = plan_model(config.plan_model, model, self.normalize, dims, config.plan_model_memory)
         self.field = RKHSFunction(self.kernel, self.action_dim, FIELD_BUDGET, config.policy_ald)
         self.threshold = retreat_threshold(config, self.kernel)
         self.retreats_on = config.retreat_mode != "off"
@@ -71,6 +71,11 @@ class Actor:
         plan.noise = np.asarray(noise)  # the learner scores each action by it (its mean moves on meanwhile)
         self._next_plan_id += 1
         return plan
+
+    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> None:
+        """One tick the world took (``action`` from ``obs`` to ``next_obs``, consecutive): the plan model
+        learns from it where it learns."""
+        self.model.observe(obs, action, next_obs)
 
     def statistic(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float | None:
         """The retreat statistic of a plan that predicted ``predicted`` ``ahead`` steps in and reached

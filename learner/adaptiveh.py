@@ -32,6 +32,7 @@ from learner.config import AdaptiveHConfig
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
+from learner.plan_model import plan_model
 from learner.plan_tolerance import (
     FixedTolerance,
     LearnedTolerance,
@@ -173,6 +174,8 @@ class AdaptiveH:
         if model is None:
             name = type(base).__name__
             raise ValueError(f"execution: plan needs the env's world model; {name} has no predict_next")
+        dims = (len(self.normalize.centre), len(self.policy.low))
+        model = plan_model(self.config.plan_model, model, self.normalize, dims, self.config.plan_model_memory)
         if all(callable(getattr(base, name, None)) for name in ("send", "advance", "queued")):
             return model, base
         return model, QueuedChannel(env, self.config.latency_steps)
@@ -249,6 +252,8 @@ class AdaptiveH:
         predicted = reached = None
         if plan is self._plan and np.all(np.isfinite(step.obs)):
             predicted, reached = self.normalize(plan.predicted[step.index + 1]), self.normalize(step.obs)
+        if step.plan_id != -1:  # an action played: what the world did with it
+            self.model.observe(self._obs, step.action, step.obs)
         self.log.global_step += 1
         self._ep_return += float(step.reward)
         self._ep_len += 1

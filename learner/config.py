@@ -69,6 +69,10 @@ class AdaptiveHConfig(Section):
     # standardises the gap by its running mean square per plan step (a candidate, plan_kernel_scale unused).
     plan_tolerance: Literal["fixed", "learned", "noise_floor"] = "noise_floor"
     plan_false_alarm: float = Field(0.01, gt=0, lt=0.5)
+    # The plan's world model (learner/plan_model.py): the env's ``nominal`` one, or ``corrected`` online
+    # by a linear fit of its one-step residuals over the last ``plan_model_memory`` steps.
+    plan_model: Literal["nominal", "corrected"] = "nominal"
+    plan_model_memory: int = Field(1000, ge=2)
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = Field(50, ge=1)
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)

@@ -106,12 +106,15 @@ class NoiseFloorTolerance:
         memory: int = 2000,
         min_samples: int = 50,
         floor: float = 1e-3,
+        clip_quantile: float = 0.99,
     ) -> None:
         self.widths2 = np.asarray(widths, float) ** 2
         self.floor2 = floor**2
         self.dim, self.memory, self.min_samples = len(self.widths2), memory, min_samples
         self.kappa2 = kappa2(self.dim, threshold, false_alarm)
-        self.clip = chi2.ppf(1.0 - false_alarm, 1)  # an increment clipped at this many mean squares
+        # An increment is clipped at this many mean squares: its own 99 % quantile, whatever the false-alarm
+        # rate (clipping at a looser α's quantile would shrink the noise estimate itself).
+        self.clip = chi2.ppf(clip_quantile, 1)
         self.lag_product = np.zeros(self.dim)  # running mean of d_i d_{i+1}
         self.increment2 = np.zeros(self.dim)  # running mean square of d_i (for the clip)
         self.count = 0

@@ -52,7 +52,7 @@ def _fake_paper(root: Path) -> Path:
     return root
 
 
-@pytest.fixture(scope="module")  # 30 runs of 150 steps, one process each
+@pytest.fixture(scope="module")  # 44 runs of 150 steps, one process each
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     out = tmp_path_factory.mktemp("plans")
     paper = _fake_paper(tmp_path_factory.mktemp("paper"))
@@ -66,9 +66,9 @@ def test_every_run_is_in_plan_mode_with_its_own_file(tiny: tuple[Path, dict]) ->
     out, summary = tiny
     assert summary["failed_runs"] == [] and summary["missing_runs"] == [] and summary["stale_runs"] == []
     files = sorted((out / "runs").glob("*.json"))
-    # 2 settings x (2 fixed H + 5 AdaptiveH points) x 2 seeds, + latency on cartpole_fast: H=10 at L 0
+    # 2 settings x (2 fixed H + 6 AdaptiveH points) x 2 seeds, + latency on cartpole_fast: H=10 at L 0
     # and H=1, H=10, AdaptiveH 0.8, the default at L 2, 2 seeds, + TD3 at H = 5 on cartpole_fast, 2 seeds
-    assert len(files) == summary["plan"]["runs_total"] == 28 + 10 + 2
+    assert len(files) == summary["plan"]["runs_total"] == 32 + 10 + 2
     for path in files:
         run = json.loads(path.read_text())
         assert run["global_step"] == STEPS and run["segments"]["H"] and sum(run["segments"]["H"]) <= STEPS
@@ -103,6 +103,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
             "adaptiveh-local",
             "adaptiveh-learned",
             "adaptiveh-default",
+            "adaptiveh-corrected",
         }
         for p in s["points"].values():
             assert (
@@ -133,6 +134,7 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
         "cartpole_fast:adaptiveh-local:td3-h5",
         "cartpole_fast:adaptiveh-learned:td3-h5",
         "cartpole_fast:adaptiveh-default:td3-h5",
+        "cartpole_fast:adaptiveh-corrected:td3-h5",
     }
     lat = on_disk["latency"]
     assert list(lat) == ["cartpole_fast"]
@@ -228,16 +230,19 @@ def test_front_gap_interpolates_in_log_rate() -> None:
 
 def test_plan_order_and_shape() -> None:
     plan = build_plans_plan()
-    # front (6) + points (3 thresholds, 2 kernel scales, local, learned, the default) on 5 settings, the
-    # front and the default alone on the held-out one, the latency sweep (H = 1, H = 10, 0.8, the default),
-    # and TD3/SAC at H = 10 on cartpole_fast and reach_slow, 3 seeds
+    # front (6) + points (3 thresholds, 2 kernel scales, local, learned, the default, corrected) on 5
+    # settings, the front, the default and corrected alone on the held-out one, the latency sweep (H = 1,
+    # H = 10, 0.8, the default), and TD3/SAC at H = 10 on cartpole_fast and reach_slow, 3 seeds
     assert (
         len(plan.runs)
         == len(set(r.name for r in plan.runs))
-        == 5 * 5 * 14 + 5 * 7 + 5 * 2 * 3 * 4 + 3 * 2 * 2
+        == 5 * 5 * 15 + 5 * 8 + 5 * 2 * 3 * 4 + 3 * 2 * 2
     )
     held_out = {r.method for r in plan.runs if r.env == "reach_erratic"}
-    assert held_out == {f"rkhs-h{h}" for h in (1, 2, 5, 10, 20, 50)} | {"adaptiveh-default"}
+    assert held_out == {f"rkhs-h{h}" for h in (1, 2, 5, 10, 20, 50)} | {
+        "adaptiveh-default",
+        "adaptiveh-corrected",
+    }
     kind = {(False, False): "main", (True, False): "latency", (False, True): "baselines"}
     order = [(r.seed, kind[bool(r.latency), baseline_of(r.method) is not None]) for r in plan.runs]
     # seed by seed; each seed's latency runs, then its baselines, right after the next seed's front and points
@@ -292,6 +297,10 @@ def test_method_names_of_the_baselines_in_plan_mode() -> None:
         },
     )
     assert method_config("adaptiveh-default") == ("adaptiveh", {"execution": "plan", "retreat": None})
+    assert method_config("adaptiveh-corrected") == (
+        "adaptiveh",
+        {"execution": "plan", "retreat": None, "plan_model": "corrected"},
+    )
     assert method_label("adaptiveh-k0.15") == "AdaptiveH, plan retreat, kernel x0.15"
     assert method_config("adaptiveh-learned") == (
         "adaptiveh",
