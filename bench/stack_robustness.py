@@ -76,7 +76,8 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # step or exploration schedules), kept for comparison. tiny_camera (issue #34): the shipped stack with
 # the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. default_tolerance (issue
 # #33): the shipped agent once the plan retreat's default tolerance replaced the stack's own kernel
-# (0.083), beside the shipped rows measured before it.
+# (0.083), beside the shipped rows measured before it. corrected_model (issue #33): the shipped agent with
+# its plan model corrected online by the actor (``plan_model: corrected``, learner/plan_model.py).
 VARIANTS = (
     "",
     "old_agent",
@@ -87,6 +88,7 @@ VARIANTS = (
     "again",
     "tiny_camera",
     "default_tolerance",
+    "corrected_model",
 )
 TINY_CAMERA = {
     "rate_hz": 15.0,
@@ -113,6 +115,8 @@ def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
         return {**agent, "mean_limit": ACTION_BOX_M}
     if variant == "learned_tolerance":
         return {**agent, "plan_tolerance": "learned"}
+    if variant == "corrected_model":
+        return {**agent, "plan_model": "corrected"}
     reach = {**load_yaml(ROOT / "configs/reach.yaml")["agent"], "retreat": None}
     if variant == "reach_agent":
         return {**reach, **{k: agent[k] for k in ("plan_kernel_scale", "plan_tolerance") if k in agent}}

@@ -230,6 +230,7 @@ class ActorNode(Node):
             "outage_ticks": env.outage_ticks,
             "suspended_ticks": env.suspended_ticks,
             "robot_restarts": env.robot_restarts,
+            "plan_model_updates": getattr(self.actor.model, "updates", 0),  # corrected: ticks learned from
             "error": self.error,
         }
         self.out.parent.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,7 @@ refused with a safety event while the policy in use keeps running; a stale targe
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import secrets
@@ -17,6 +18,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -77,15 +80,18 @@ def _zenoh(cfg: dict) -> m.Any:
     return ZenohConfig(hub=cfg["zenoh"]["hub"])
 
 
-@pytest.fixture
-def arm(tmp_path: Path):
-    """robot-io (watching the actor) and the actor, up and acting; yields (config dict, bench, token)."""
+@contextmanager
+def _acting(tmp_path: Path, agent: dict | None = None) -> Iterator[tuple[dict, Bench, str]]:
+    """robot-io (watching the actor) and the actor (``agent`` laid over the stack's agent settings), up
+    and acting; yields (config dict, bench, token). The actor has stopped (and written ``actor.json``)
+    when the block ends."""
     cfg = compose_stack_yaml("configs/sim.yaml")
     cfg.pop("vision")
     cfg.pop("monitor")
     cfg["name"] = unique_name("act")
     cfg["zenoh"]["hub"] = free_endpoint()
     cfg["learner"].update(steps=100_000, checkpoint_dir=str(tmp_path / "learner"), execution="actor")
+    cfg["learner"]["agent"].update(agent or {})
     token = secrets.token_urlsafe(12)
     joined: list[Bench] = []
 
@@ -105,6 +111,12 @@ def arm(tmp_path: Path):
         ):
             yield cfg, bench, token
         bench.bus.close()
+
+
+@pytest.fixture
+def arm(tmp_path: Path) -> Iterator[tuple[dict, Bench, str]]:
+    with _acting(tmp_path) as up:
+        yield up
 
 
 def _learner(cfg: dict, tmp_path: Path, token: str) -> subprocess.Popen:
@@ -216,3 +228,13 @@ def test_a_stale_target_is_never_used_as_fresh(arm, outage):
     assert max(ages) <= limit, f"a transition with a target {max(ages):.2f} s old"
     targets = np.array([t.next_obs[6:9] for t in seen] + [t.obs[6:9] for t in seen])
     assert np.min(np.linalg.norm(targets - STALE_POSITION, axis=1)) > 0.02, "the stale fix was acted on"
+
+
+def test_the_actor_corrects_its_plan_model_from_the_ticks_it_played(tmp_path):
+    with _acting(tmp_path, {"plan_model": "corrected"}) as (cfg, bench, token):
+        n = len(bench.transitions)
+        bench.wait(lambda: len(bench.transitions) > n + 60, 30, "60 more ticks")
+        ticks = len(bench.transitions)
+    counts = json.loads((Path(cfg["learner"]["checkpoint_dir"]) / "actor.json").read_text())
+    # Each consecutive tick that played a plan's action; not a tick across a reset or an outage.
+    assert 40 <= counts["plan_model_updates"] < counts["steps"], (counts, ticks)
