@@ -139,12 +139,18 @@ def plans_default(data: dict[str, Any]) -> str:
     return "\n".join(default_table(data)) + "\n"
 
 
+def plans_corrected(data: dict[str, Any]) -> str:
+    """``results/plans/summary.json``: the default with the plan model corrected online, per setting."""
+    return "\n".join(default_table(data, "adaptiveh-corrected")) + "\n"
+
+
 TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "robot_io_tick": ("results/robot_io_bench.json", robot_io_tick),
     "sim_camera": ("results/vision_bench.json", sim_camera),
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "plans_default": ("results/plans/summary.json", plans_default),
+    "plans_corrected": ("results/plans/summary.json", plans_corrected),
 }
 
 
