@@ -144,7 +144,7 @@ class ActorNode(Node):
                 self.env.send(plan)
             step = self.env.advance()
             if step.plan_id != -1 and tick is not None and step.info.get("tick") == tick + 1:
-                self.actor.observe(obs, step.action, step.obs)
+                self.actor.model.observe(obs, step.action, step.obs)  # what the world did with it
             tick = step.info.get("tick")
             length += 1
             stat, end = self._judge(plan, step, length, played)
@@ -230,7 +230,7 @@ class ActorNode(Node):
             "outage_ticks": env.outage_ticks,
             "suspended_ticks": env.suspended_ticks,
             "robot_restarts": env.robot_restarts,
-            "plan_model_updates": getattr(self.actor.model, "updates", 0),  # corrected: ticks learned from
+            "plan_model_updates": self.actor.model.updates,  # ticks the plan model learned from
             "error": self.error,
         }
         self.out.parent.mkdir(parents=True, exist_ok=True)

@@ -72,11 +72,6 @@ class Actor:
         self._next_plan_id += 1
         return plan
 
-    def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> None:
-        """One tick the world took (``action`` from ``obs`` to ``next_obs``, consecutive): the plan model
-        learns from it where it learns."""
-        self.model.observe(obs, action, next_obs)
-
     def statistic(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float | None:
         """The retreat statistic of a plan that predicted ``predicted`` ``ahead`` steps in and reached
         ``reached`` (observations); None where the field has no estimate yet (or the retreat is off)."""

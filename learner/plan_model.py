@@ -24,6 +24,8 @@ Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
 class NominalModel:
     """The env's own model as it is: nothing to learn."""
 
+    updates = 0  # steps learned from (none)
+
     def __init__(self, nominal: Model) -> None:
         self.nominal = nominal
 
@@ -76,20 +78,22 @@ class CorrectedModel:
     def observe(self, obs: np.ndarray, action: np.ndarray, next_obs: np.ndarray) -> None:
         """One step the world took: ``action`` from ``obs`` led to ``next_obs`` (non-finite: skipped)."""
         phi = self.features(obs, action)
-        residual = np.asarray(next_obs, float) - self.nominal(obs, action)
+        predicted = self.nominal(obs, action)
+        residual = np.asarray(next_obs, float) - predicted
         if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(residual))):
             return
-        self._judge(next_obs, residual, phi)
+        self._judge(next_obs, predicted, phi)
         self.gram = self.forget * self.gram + np.outer(phi, phi)
         self.cross = self.forget * self.cross + np.outer(phi, residual)
         self.W = np.linalg.solve(self.gram + self.ridge, self.cross)
         self.updates += 1
 
-    def _judge(self, next_obs: np.ndarray, residual: np.ndarray, phi: np.ndarray) -> None:
-        """Update the paired test with this step's errors, each from the fit before the step."""
-        nominal = np.asarray(next_obs, float) - residual
-        e_nom = self.normalize(next_obs) - self.normalize(nominal)
-        e_cor = self.normalize(next_obs) - self.normalize(nominal + phi @ self.W)
+    def _judge(self, next_obs: np.ndarray, predicted: np.ndarray, phi: np.ndarray) -> None:
+        """Update the paired test with this step's errors (``predicted``: the nominal model's), each from
+        the fit before the step."""
+        seen = self.normalize(next_obs)
+        e_nom = seen - self.normalize(predicted)
+        e_cor = seen - self.normalize(predicted + phi @ self.W)
         gain = float(e_nom @ e_nom - e_cor @ e_cor)
         w = max(1.0 / (self.updates + 1), 1.0 / self.memory)
         self.gain_mean += w * (gain - self.gain_mean)

@@ -13,6 +13,7 @@ import re
 import statistics
 import sys
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -134,14 +135,9 @@ def robot_io_tick(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plans_default(data: dict[str, Any]) -> str:
-    """``results/plans/summary.json``: the default plan retreat per setting against the issue's goals."""
-    return "\n".join(default_table(data)) + "\n"
-
-
-def plans_corrected(data: dict[str, Any]) -> str:
-    """``results/plans/summary.json``: the default with the plan model corrected online, per setting."""
-    return "\n".join(default_table(data, "adaptiveh-corrected")) + "\n"
+def plans_point(data: dict[str, Any], method: str) -> str:
+    """``results/plans/summary.json``: one plan-retreat point per setting against issue #33's goals."""
+    return "\n".join(default_table(data, method)) + "\n"
 
 
 TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
@@ -149,8 +145,8 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "sim_camera": ("results/vision_bench.json", sim_camera),
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
-    "plans_default": ("results/plans/summary.json", plans_default),
-    "plans_corrected": ("results/plans/summary.json", plans_corrected),
+    "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
+    "plans_corrected": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-corrected")),
 }
 
 
