@@ -67,8 +67,9 @@ def test_a_malformed_unsigned_estop_stops_the_arm_within_two_periods(driven, cas
         t_sent = time.monotonic()
         probe.wait(lambda: probe.states[-1].mode == m.RobotState.ESTOP, 2 * period + 0.5, "the e-stop")
         time.sleep(max(0.0, t_sent + 2 * period - time.monotonic()))
-        n = len(probe.states)
-        probe.wait(lambda: len(probe.states) > n, 2, "a state after two periods")
+        # A newer tick, not a longer list: ``probe.states`` keeps the newest 50 only (full after 2.5 s).
+        last = probe.states[-1].tick
+        probe.wait(lambda: probe.states[-1].tick > last, 2, "a state after two periods")
         settled = probe.states[-1]
         assert settled.mode == m.RobotState.ESTOP
         assert max(abs(v) for v in settled.dq) < 0.01, f"{case}: joints still at {max(np.abs(settled.dq))}"
