@@ -59,6 +59,33 @@ def write_run(out_dir: Path, result: dict[str, Any]) -> Path:
     return path
 
 
+# The packages whose versions change a run's numbers (NS CartPole is chaotic: one float apart, another run).
+RUN_PACKAGES = (
+    "numpy",
+    "scipy",
+    "gymnasium",
+    "torch",
+    "stable-baselines3",
+    "pybullet",
+    "mujoco",
+    "pin",
+    "mink",
+)
+
+
+def package_versions() -> dict[str, str | None]:
+    """The installed version of each of ``RUN_PACKAGES`` (None: not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found: dict[str, str | None] = {}
+    for name in RUN_PACKAGES:
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            found[name] = None
+    return found
+
+
 def code_version() -> dict[str, Any]:
     """The commit of the source tree this process imports, and whether its code/configs differ from it."""
     import subprocess
@@ -116,6 +143,7 @@ def compute_run(spec: RunSpec, code: dict[str, Any] | None = None, executor: str
         "peak_rss_mb": peak_kb / 1024.0,
         "python": sys.version.split()[0],
         "code": code if code is not None else code_version(),
+        "packages": package_versions(),  # where the run ran (a Ray worker's, not the driver's)
         "executor": executor,
         "host": socket.gethostname(),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),

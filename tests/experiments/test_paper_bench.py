@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -59,6 +60,7 @@ def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> No
         assert run["global_step"] == STEPS  # equal budgets, exactly
         assert run["executor"] == "local" and TINY.get(run["algo"], {}).items() <= run["config"].items()
         assert 0 < run["wall_s"] and 20 < run["peak_rss_mb"] < 8000
+        assert run["packages"]["numpy"] == np.__version__ and run["packages"]["gymnasium"] == gym.__version__
         steps = run["episodes"]["global_step"]
         assert steps and steps == sorted(steps) and steps[-1] <= STEPS
         assert len(run["episodes"]["ret"]) == len(steps)
