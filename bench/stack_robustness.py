@@ -238,6 +238,8 @@ def run_one(base: dict, condition: str, seed: int, steps: int) -> dict[str, Any]
             )
         summary = json.loads(summary_path.read_text())
         result = json.loads((tmp / "learner" / "result.json").read_text())
+        actor_file = tmp / "learner" / "actor.json"  # execution: actor (what the actor beside the arm did)
+        actor = json.loads(actor_file.read_text()) if actor_file.exists() else None
         with watcher.lock:
             states, chunks, ages = list(watcher.states), list(watcher.chunks), list(watcher.target_age)
         watcher.bus.close()
@@ -259,6 +261,7 @@ def run_one(base: dict, condition: str, seed: int, steps: int) -> dict[str, Any]
         "state_to_chunk_ms": latency(states, chunks),
         "restarts": summary["restarts"],
         "load_during": os.getloadavg(),
+        "actor": actor,
     }
     if restart is not None:
         out["robot_io_restart"] = restart

@@ -62,6 +62,9 @@ class ActorNode(Node):
         self._episode_seed = lc.seed
         self._plans: dict[int, Plan] = {}  # recent plans by id: a tick can still play the previous one
         self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
+        # Plans whose first action played, those that began ticks after the state they were planned from
+        # (the ticks between played the plan before's tail or a hold), and those ticks in all.
+        self.starts = {"plan_starts": 0, "plan_starts_late": 0, "late_ticks": 0}
         self.retreat_preemptions = 0  # a retreat's plan preempting the rest of the one before
         self.retreat_dropped = 0
         self._refusals = EventThrottle("refused snapshots")
@@ -126,26 +129,29 @@ class ActorNode(Node):
             self._write_counts()
 
     def _episode(self) -> None:
-        obs, _ = self.env.reset(seed=self._episode_seed)
+        obs, info = self.env.reset(seed=self._episode_seed)
         self._episode_seed += 1
         episode = self.counts["episodes"]
         plan: Plan | None = None
         played = length = 0
         opened_by = "first"
         tick = None  # of ``obs``: the plan model learns from consecutive ticks only (an outage skips some)
+        seen = planned_from = info.get("tick")  # the tick of ``obs``; of the state the plan was made from
         while not self.stopping:
             # A plan is made from the newest tick only: ticks that played while this process was held up
             # (a stall, a loaded machine) are streamed first, never planned from.
             if plan is None and not self.env.backlog():
                 self._take_offered()
-                plan = self.actor.plan(obs, self.counts["segments"], opened_by)
+                plan, planned_from = self.actor.plan(obs, self.counts["segments"], opened_by), seen
                 recent = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2}
                 self._plans = recent | {plan.plan_id: plan}
                 self.env.send(plan)
             step = self.env.advance()
             if step.plan_id != -1 and tick is not None and step.info.get("tick") == tick + 1:
                 self.actor.model.observe(obs, step.action, step.obs)  # what the world did with it
-            tick = step.info.get("tick")
+            if plan is not None and step.plan_id == plan.plan_id and step.index == 0:
+                self._plan_started(plan, obs, step.info.get("tick"), planned_from, seen)
+            tick = seen = step.info.get("tick")
             length += 1
             stat, end = self._judge(plan, step, length, played)
             played += plan is not None and step.plan_id == plan.plan_id
@@ -160,6 +166,22 @@ class ActorNode(Node):
                 self.counts["episodes"] += 1
                 return
             obs = step.obs
+
+    def _plan_started(
+        self, plan: Plan, obs: np.ndarray, tick: int | None, planned_from: int | None, before: int | None
+    ) -> None:
+        """``plan``'s first action played at ``tick``. When ticks played between the state it was planned
+        from (``planned_from``) and it, the actor re-anchors it at ``obs``, the state that action met (of
+        tick ``before``; consecutive ticks only)."""
+        if tick is None or planned_from is None:
+            return
+        late = tick - planned_from - 1
+        self.starts["plan_starts"] += 1
+        if late > 0:
+            self.starts["plan_starts_late"] += 1
+            self.starts["late_ticks"] += late
+            if before == tick - 1:
+                self.actor.anchor(plan, obs)
 
     def _judge(self, plan: Plan | None, step: Executed, length: int, played: int) -> tuple[float | None, str]:
         """(the retreat statistic, how the segment stands after ``step``): as ``AdaptiveH`` closes one."""
@@ -220,6 +242,7 @@ class ActorNode(Node):
         env = self.env
         out = {
             **self.counts,
+            **self.starts,
             "policy_version": self.actor.version,
             "dropped_planned": env.book.dropped_planned,
             "dropped_planned_moving": env.book.dropped_moving,

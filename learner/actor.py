@@ -18,7 +18,7 @@ from learner.config import AdaptiveHConfig
 from learner.dictionary import RKHSFunction
 from learner.normalizer import StateNormalizer
 from learner.plan_model import plan_model
-from learner.plans import Plan, sample_plan
+from learner.plans import Plan, predicted_states, sample_plan
 from learner.retreat import plan_statistic
 from learner.snapshot import PolicySnapshot
 
@@ -71,6 +71,12 @@ class Actor:
         plan.noise = np.asarray(noise)  # the learner scores each action by it (its mean moves on meanwhile)
         self._next_plan_id += 1
         return plan
+
+    def anchor(self, plan: Plan, obs: np.ndarray) -> None:
+        """``plan``'s first action met ``obs``, not the state the plan was made from (it began ticks late,
+        after the plan before's tail or a hold): its predictions are re-made from there, so the retreat
+        judges what the world did to the plan, not when it began."""
+        plan.predicted = predicted_states(self.model, obs, plan.actions)
 
     def statistic(self, ahead: int, predicted: np.ndarray, reached: np.ndarray) -> float | None:
         """The retreat statistic of a plan that predicted ``predicted`` ``ahead`` steps in and reached

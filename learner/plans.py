@@ -86,10 +86,15 @@ class PlanChannel(Protocol):
 
 def rollout(model: Model, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
     """The observation the model predicts after playing ``actions`` from ``obs``."""
-    o = np.asarray(obs, float)
+    return predicted_states(model, obs, actions)[-1]
+
+
+def predicted_states(model: Model, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """``obs`` and the ``len(actions)`` observations the model predicts as ``actions`` play from it."""
+    states = [np.asarray(obs, float)]
     for a in actions:
-        o = model(o, a)
-    return o
+        states.append(model(states[-1], a))
+    return np.asarray(states)
 
 
 def sample_plan(

@@ -107,3 +107,21 @@ def test_the_learner_closes_segments_where_the_actor_says():
     assert agent.log.global_step == 9 and agent.log.episode_count == 1
     assert agent.log.episodes[0].length == 9
     assert agent.snapshot().version == 9
+
+
+def test_a_plan_that_began_late_is_judged_from_the_state_its_first_action_met(trained):
+    env, agent = trained
+    actor = Actor(env, CONFIG, seed=0)
+    actor.load(agent.snapshot())
+    planned_from = np.array([0.0, 0.0, 0.02, 0.0])
+    plan = actor.plan(planned_from, segment=0, opened_by="first")
+    met = planned_from
+    for _ in range(3):  # three ticks of the plan before played first, pushing the cart right
+        met = actor.model(met, np.ones(1))
+    reached = actor.model(met, plan.actions[0])  # the world as the model says: no surprise
+    assert actor.retreats(actor.statistic(1, plan.predicted[1], reached))  # judged from where it was made
+    actor.anchor(plan, met)
+    np.testing.assert_allclose(plan.predicted[0], met)
+    np.testing.assert_allclose(plan.predicted[-1], rollout(actor.model, met, plan.actions))
+    assert actor.statistic(1, plan.predicted[1], reached) == pytest.approx(1.0)
+    assert not actor.retreats(actor.statistic(1, plan.predicted[1], reached))
