@@ -64,6 +64,15 @@ DRIFT_PAIRS = (
     ("reach_slow", "reach_fast"),
     ("reach_fast", "reach_erratic"),
 )
+# ``adaptiveh bench plans --default-only``: the front, the default and the corrected option, nothing else
+# (no other points, latency sweep or plan-mode baselines): e.g. more seeds behind the default's verdicts.
+DEFAULT_ONLY = {
+    "thresholds": (),
+    "kernel_scales": (),
+    "learned": False,
+    "local": False,
+    "baseline_methods": (),
+}
 FULL_SEEDS = 5
 QUICK_SEEDS = 2
 QUICK_STEPS = {"NSCartPoleContinuous-v0": 1000, "NSPendulum-v0": 1000, "NSReach-v0": 500}
@@ -241,6 +250,7 @@ def build_plans_plan(
     thresholds: tuple[float, ...] = THRESHOLDS,
     kernel_scales: tuple[float, ...] = KERNEL_SCALES,
     learned: bool = True,
+    local: bool = True,
     latencies: tuple[int, ...] = LATENCIES,
     baseline_methods: tuple[str, ...] = BASELINE_METHODS,
     baseline_h: tuple[int, ...] = BASELINE_H,
@@ -270,8 +280,8 @@ def build_plans_plan(
     if steps is not None and steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     budget = {k: steps or (QUICK_STEPS[SETTINGS[k].env_id] if quick else SETTINGS[k].steps) for k in keys}
-    points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales] + [LOCAL_METHOD]
-    points += [LEARNED_METHOD] if learned else []
+    points = [plan_method(t) for t in thresholds] + [scale_method(k) for k in kernel_scales]
+    points += ([LOCAL_METHOD] if local else []) + ([LEARNED_METHOD] if learned else [])
     points += [DEFAULT_METHOD, CORRECTED_METHOD]
     front = [fixed_method(h) for h in front_h]
     lat_settings = [k for k in LATENCY_SETTINGS if k in keys]

@@ -61,6 +61,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     plans.add_argument(
         "--report-only", action="store_true", help="only rebuild the report from finished runs"
     )
+    plans.add_argument(
+        "--default-only",
+        action="store_true",
+        help="the front, the default and the corrected option only: no other points, latency sweep or "
+        "plan-mode baselines (with its own --out: e.g. --seeds 10 --out results/plans_s10)",
+    )
     plans.add_argument("--no-progress", action="store_true", help="no progress bar")
     plans.set_defaults(func=_plans)
 
@@ -124,17 +130,22 @@ def _paper(args: argparse.Namespace) -> int:
 
 
 def _plans(args: argparse.Namespace) -> int:
+    from experiments.plans import DEFAULT_ONLY
     from experiments.plans_bench import main_plans
     from experiments.tables import format_verdicts
 
     _check_executor(args)
+    if args.default_only and (args.out is None or args.latency_seeds):
+        raise SystemExit("--default-only needs its own --out and runs no latency sweep (no --latency-seeds)")
     out = args.out or Path("results/plans_quick" if args.quick else "results/plans")
+    shape: dict = {"latency_seeds": args.latency_seeds}
+    if args.default_only:
+        shape = {**DEFAULT_ONLY, "latency_seeds": 0}
     summary = main_plans(
         quick=args.quick,
         out=out,
         jobs=args.jobs,
         seeds=args.seeds,
-        latency_seeds=args.latency_seeds,
         steps=args.steps,
         settings=args.settings,
         report_only=args.report_only,
@@ -142,6 +153,7 @@ def _plans(args: argparse.Namespace) -> int:
         paper_dir=args.paper_dir,
         executor=args.executor,
         ray_address=args.ray_address,
+        **shape,
     )
     print(format_verdicts(summary))
     print(f"figures, summary.json and summary.md in {out}; missing runs: {len(summary['missing_runs'])}")

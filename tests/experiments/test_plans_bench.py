@@ -15,6 +15,7 @@ import pytest
 
 from deploy.commands import bench
 from experiments.plans import (
+    DEFAULT_ONLY,
     SETTINGS,
     baseline_of,
     build_plans_plan,
@@ -275,6 +276,19 @@ def test_plan_order_and_shape() -> None:
         build_plans_plan(baseline_methods=("ppo",))
     with pytest.raises(ValueError, match="positive integer"):
         build_plans_plan(baseline_h=(0,))
+
+
+def test_the_default_only_shape_runs_the_front_the_default_and_corrected_alone(tmp_path: Path) -> None:
+    plan = build_plans_plan(seeds=10, latency_seeds=0, **DEFAULT_ONLY)
+    front = {f"rkhs-h{h}" for h in (1, 2, 5, 10, 20, 50)}
+    assert {r.method for r in plan.runs} == front | {"adaptiveh-default", "adaptiveh-corrected"}
+    assert len(plan.runs) == 6 * 8 * 10 and not [r for r in plan.runs if r.latency]
+    parser = argparse.ArgumentParser()
+    bench.register(parser.add_subparsers())
+    for extra in ([], ["--out", str(tmp_path), "--latency-seeds", "2"]):  # results/plans keeps its points
+        args = parser.parse_args(["bench", "plans", "--default-only", "--report-only", *extra])
+        with pytest.raises(SystemExit, match="--default-only needs its own --out"):
+            args.func(args)
 
 
 def test_method_names_of_the_baselines_in_plan_mode() -> None:
