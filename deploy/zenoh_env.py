@@ -141,10 +141,11 @@ class ReachSpec(gym.Env):
         s = settings.max_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
         self.period = 1.0 / settings.control_rate_hz
+        self.workspace = (np.asarray(lo, float), np.asarray(hi, float))  # robot-io's box for the goal
 
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
-        return predict_reach(obs, action, self.period, self.settings.max_step_m)
+        return predict_reach(obs, action, self.period, self.settings.max_step_m, workspace=self.workspace)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         raise RuntimeError("ReachSpec has no robot: the actor beside the arm steps the task")

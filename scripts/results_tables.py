@@ -136,7 +136,8 @@ def robot_io_tick(data: dict[str, Any]) -> str:
 
 
 def plans_point(data: dict[str, Any], method: str) -> str:
-    """``results/plans/summary.json``: one plan-retreat point per setting against issue #33's goals."""
+    """A plans-bench summary (``results/plans``, or ``results/plans_s10``: the front, the default and the
+    corrected option on 10 seeds): one plan-retreat point per setting against issue #33's goals."""
     return "\n".join(default_table(data, method)) + "\n"
 
 
@@ -147,6 +148,11 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
     "plans_corrected": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-corrected")),
+    "plans_s10_default": ("results/plans_s10/summary.json", partial(plans_point, method="adaptiveh-default")),
+    "plans_s10_corrected": (
+        "results/plans_s10/summary.json",
+        partial(plans_point, method="adaptiveh-corrected"),
+    ),
 }
 
 

