@@ -72,6 +72,7 @@ DEFAULT_ONLY = {
     "learned": False,
     "local": False,
     "baseline_methods": (),
+    "latency_seeds": 0,
 }
 FULL_SEEDS = 5
 QUICK_SEEDS = 2

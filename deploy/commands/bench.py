@@ -138,9 +138,7 @@ def _plans(args: argparse.Namespace) -> int:
     if args.default_only and (args.out is None or args.latency_seeds):
         raise SystemExit("--default-only needs its own --out and runs no latency sweep (no --latency-seeds)")
     out = args.out or Path("results/plans_quick" if args.quick else "results/plans")
-    shape: dict = {"latency_seeds": args.latency_seeds}
-    if args.default_only:
-        shape = {**DEFAULT_ONLY, "latency_seeds": 0}
+    shape = DEFAULT_ONLY if args.default_only else {"latency_seeds": args.latency_seeds}
     summary = main_plans(
         quick=args.quick,
         out=out,

@@ -279,7 +279,7 @@ def test_plan_order_and_shape() -> None:
 
 
 def test_the_default_only_shape_runs_the_front_the_default_and_corrected_alone(tmp_path: Path) -> None:
-    plan = build_plans_plan(seeds=10, latency_seeds=0, **DEFAULT_ONLY)
+    plan = build_plans_plan(seeds=10, **DEFAULT_ONLY)
     front = {f"rkhs-h{h}" for h in (1, 2, 5, 10, 20, 50)}
     assert {r.method for r in plan.runs} == front | {"adaptiveh-default", "adaptiveh-corrected"}
     assert len(plan.runs) == 6 * 8 * 10 and not [r for r in plan.runs if r.latency]
