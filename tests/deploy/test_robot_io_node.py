@@ -211,6 +211,8 @@ def test_05_estop_stops_the_arm_within_two_periods(obeyed):
 
 def test_06_learner_liveliness_loss_holds_the_arm(robot):
     bus, listener, _ = robot
+    control(bus, "release")  # a test before may have left a watchdog hold, which the restart would not clear
+    listener.wait(lambda: listener.latest().mode == m.RobotState.RUNNING, timeout=2)
     before = len(listener.events("liveliness"))
     Robot.learner.close()  # the learner process goes away
     _, event = listener.wait(lambda: listener.events("liveliness")[before:], timeout=3)[0]
