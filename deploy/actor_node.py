@@ -98,6 +98,15 @@ class ActorNode(Node):
         detail = f"policy snapshot refused, the policy of version {self.actor.version} keeps running: {why}"
         with self._lock:
             detail = self._refusals.detail(detail, time.monotonic())
+        self._report_refusal(detail)
+
+    def _report_held_back(self) -> None:
+        """Snapshots the throttle held back, once their window ends (a burst with nothing after)."""
+        with self._lock:
+            detail = self._refusals.overdue(time.monotonic())
+        self._report_refusal(detail)
+
+    def _report_refusal(self, detail: str | None) -> None:
         if detail is not None:
             self._pub_safety(m.SafetyEvent(kind=m.SafetyEvent.BAD_MESSAGE, detail=detail, held=False))
 
@@ -156,6 +165,7 @@ class ActorNode(Node):
             stat, end = self._judge(plan, step, length, played)
             played += plan is not None and step.plan_id == plan.plan_id
             self._publish(episode, obs, step, stat, end, plan)
+            self._report_held_back()
             self.counts["steps"] += 1
             if end != "open":
                 self.counts["segments"] += 1

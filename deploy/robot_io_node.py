@@ -248,6 +248,13 @@ class RobotIONode(Node):
             self.controller.learner_confirmed_alive(session)
 
     # -- publishing ----------------------------------------------------------------------------------
+    def _report_held_back(self, now: float) -> None:
+        """Bad messages the throttle held back, once their window ends (a burst with nothing after)."""
+        with self._lock:
+            detail = self._bad_events.overdue(now)
+        if detail is not None:
+            self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
+
     def _publish_safety(self, kind: str, detail: str, held: bool) -> None:
         self._pub_safety(m.SafetyEvent(kind=m.enum(m.SafetyEvent, "kind", kind), detail=detail, held=held))
 
@@ -323,6 +330,7 @@ class RobotIONode(Node):
             now = time.monotonic()
             if now >= next_tick:
                 self._publish(self.controller.tick(now))
+                self._report_held_back(now)
                 self.ticks += 1
                 next_tick += self.period
                 if next_tick <= time.monotonic():  # fell behind (a long reset): never burst;

@@ -251,6 +251,9 @@ class RobotController:
             self._pending.clear()
         self._handle_fault(released)
         with self._lock:
+            held_back = self._refusals.overdue(now)
+            if held_back is not None:
+                self.safety.report("foreign_command", f"commands ignored: {held_back}")
             self.safety.check_watchdog(now, queue_empty=len(self.queue) == 0)
             if self.safety.may_move:
                 self._braked = False

@@ -43,6 +43,15 @@ class EventThrottle:
         self.last, self.held = now, 0
         return detail
 
+    def overdue(self, now: float) -> str | None:
+        """The count held back, once its window has passed with nothing let through: a short burst of
+        bad input is reported even when nothing follows it."""
+        if not self.held or now - self.last < self.every_s:
+            return None
+        detail = f"{self.held} more {self.what} since the last report"
+        self.last, self.held = now, 0
+        return detail
+
 
 class Safety:
     def __init__(self, workspace: WorkspaceBox, watchdog_timeout_s: float) -> None:

@@ -199,6 +199,11 @@ def test_a_bad_snapshot_is_refused_with_a_safety_event_and_the_policy_in_use_kee
             send()
             bench.wait(lambda n=n: len(bench.refusals()) > n, 5, f"a refusal ({why})")
             assert why in bench.refusals()[-1]
+        time.sleep(1.1)
+        for _ in range(3):  # a burst: the rest is reported when the throttle's second ends
+            put(_snapshot(500))
+        late = lambda: [e for e in bench.safety if "2 more refused snapshots" in e.detail]  # noqa: E731
+        bench.wait(late, 5, "the refusals held back")
     finally:
         stranger.close()
     n = len(bench.transitions)

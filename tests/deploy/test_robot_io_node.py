@@ -242,6 +242,12 @@ def test_07_bad_bytes_are_reported_and_the_process_lives(robot):
     bus.session.put(bus.key(m.CMD_CHUNK), b"\x00not a message")
     _, event = listener.wait(lambda: listener.events("bad_message")[before:], timeout=2)[0]
     assert "cmd/chunk" in event.detail
+    for _ in range(3):  # a burst: the first is reported at once, the rest when the throttle's second ends
+        bus.session.put(bus.key(m.CONTROL), b"\x00not a message")
+    _, event = listener.wait(lambda: listener.events("bad_message")[before + 1 :], timeout=2)[0]
+    assert "control" in event.detail
+    _, late = listener.wait(lambda: listener.events("bad_message")[before + 2 :], timeout=3)[0]
+    assert "2 more bad messages since the last report" in late.detail
     last = listener.states[-1][1].tick  # a newer tick: the kept states are bounded (maxlen)
     listener.wait(lambda: listener.states[-1][1].tick > last + 5, timeout=2)
     assert proc.poll() is None

@@ -104,6 +104,18 @@ def test_a_flood_of_refusals_is_one_event_per_second_with_the_count(controller):
     assert "and 999 more refused" in events(controller, "foreign_command")[0]
 
 
+def test_refusals_held_back_are_reported_when_their_window_ends_though_none_follow(controller):
+    """A short burst of forgeries right after another refusal: the operator still hears of it."""
+    controller.obey(LEARNER)
+    for k in range(3):
+        controller.push_chunk(STRANGER, k, UP, 10.0 + k * 0.1)
+    assert len(events(controller, "foreign_command")) == 1  # the first; two held back
+    assert not [e for e in controller.tick(10.9).events if e.kind == "foreign_command"]
+    late = [e for e in controller.tick(11.1).events if e.kind == "foreign_command"]
+    assert [e.detail for e in late] == ["commands ignored: 2 more refused since the last report"]
+    assert not late[0].held and not [e for e in controller.tick(13.0).events if e.kind == "foreign_command"]
+
+
 def test_gate_alone():
     gate = CommandGate(max_seq_gap=3)
     gate.alive("s", True)
