@@ -74,10 +74,10 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
 # old_agent: the stack's agent before it took reach.yaml's (kernel 0.5 on the relative coordinates, no
 # step or exploration schedules), kept for comparison. tiny_camera (issue #34): the shipped stack with
-# the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. default_tolerance (issue
-# #33): the shipped agent once the plan retreat's default tolerance replaced the stack's own kernel
-# (0.083), beside the shipped rows measured before it. corrected_model (issue #33): the shipped agent with
-# its plan model corrected online by the actor (``plan_model: corrected``, learner/plan_model.py).
+# the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. own_kernel (issue #33): the
+# shipped agent with the plan kernel the stack had before the default tolerance replaced it (0.083 on the
+# relative coordinates, fixed). corrected_model (issue #33): the shipped agent with its plan model
+# corrected online by the actor (``plan_model: corrected``, learner/plan_model.py).
 VARIANTS = (
     "",
     "old_agent",
@@ -87,7 +87,7 @@ VARIANTS = (
     "mean_limit",
     "again",
     "tiny_camera",
-    "default_tolerance",
+    "own_kernel",
     "corrected_model",
 )
 TINY_CAMERA = {
@@ -96,6 +96,7 @@ TINY_CAMERA = {
 }
 ACTION_BOX_M = 0.05  # NS Reach's action bound per axis (robot.max_step_m)
 OLD_AGENT = {"alpha_final": None, "sigma_final": None, "bandwidth": [5.0] * 12 + [0.5] * 3}
+OWN_KERNEL = [1.0] * 12 + [0.083] * 3
 
 
 def apply_variant(variant: str, base: dict[str, Any]) -> None:
@@ -107,8 +108,10 @@ def apply_variant(variant: str, base: dict[str, Any]) -> None:
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if variant in ("", "again", "tiny_camera", "default_tolerance"):
+    if variant in ("", "again", "tiny_camera"):
         return agent
+    if variant == "own_kernel":
+        return {**agent, "plan_kernel_scale": OWN_KERNEL, "plan_tolerance": "fixed"}
     if variant == "old_agent":
         return {**agent, **OLD_AGENT}
     if variant == "mean_limit":
