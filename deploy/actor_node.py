@@ -96,15 +96,11 @@ class ActorNode(Node):
         if log_it:
             self.bus.report_bad(m.POLICY.name, m.MessageError(why, "out_of_range"))  # rate-limited
         detail = f"policy snapshot refused, the policy of version {self.actor.version} keeps running: {why}"
-        with self._lock:
-            detail = self._refusals.detail(detail, time.monotonic())
-        self._report_refusal(detail)
+        self._report_refusal(self._refusals.detail(detail, time.monotonic()))
 
     def _report_held_back(self) -> None:
         """Snapshots the throttle held back, once their window ends (a burst with nothing after)."""
-        with self._lock:
-            detail = self._refusals.overdue(time.monotonic())
-        self._report_refusal(detail)
+        self._report_refusal(self._refusals.overdue(time.monotonic()))
 
     def _report_refusal(self, detail: str | None) -> None:
         if detail is not None:

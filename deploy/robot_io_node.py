@@ -148,8 +148,7 @@ class RobotIONode(Node):
             self.controller.refuse_plan("bad_message", f"{topic}: {exc}")
             self._wake.set()  # the control thread publishes the event and the dropped rest at once
             return
-        with self._lock:  # a flood of bad bytes must not flood the operator
-            detail = self._bad_events.detail(f"{topic}: {exc}", time.monotonic())
+        detail = self._bad_events.detail(f"{topic}: {exc}", time.monotonic())  # a flood must not flood
         if detail is not None:
             self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
@@ -250,8 +249,7 @@ class RobotIONode(Node):
     # -- publishing ----------------------------------------------------------------------------------
     def _report_held_back(self, now: float) -> None:
         """Bad messages the throttle held back, once their window ends (a burst with nothing after)."""
-        with self._lock:
-            detail = self._bad_events.overdue(now)
+        detail = self._bad_events.overdue(now)
         if detail is not None:
             self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
