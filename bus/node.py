@@ -9,6 +9,7 @@ only what differs: its topics (in ``__init__``), its worker loops (``workers``),
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import signal
 import threading
@@ -92,26 +93,55 @@ class Node:
         self.stop()
 
 
-def on_stop_signal(action: Callable[[], None], *signums: int) -> None:
-    """Run ``action`` (e.g. ``node.request_stop``) when one of ``signums`` arrives, on its own thread.
+STOP_DEADLINE_S = 10.0
+"""A part told to stop exits within this many seconds, or dumps every thread's stack to its log and exits
+with status 1 (``faulthandler``: a C watchdog, it fires even while Python is stuck). Each worker gets 5 s
+to end, then the bus and the driver are closed; a close that never returns (a Zenoh session, a driver's
+disconnect) must not leave an orphan on the bus beside the arm with nobody left to stop it."""
+
+
+def exit_within(deadline_s: float | None) -> None:
+    """From now on, the process ends within ``deadline_s`` s whatever it is doing (None: no limit).
+
+    Armed once: a second signal does not move the deadline."""
+    if deadline_s is None or _exit_armed.is_set():
+        return
+    _exit_armed.set()
+    faulthandler.dump_traceback_later(deadline_s, exit=True)
+
+
+_exit_armed = threading.Event()
+
+
+def on_stop_signal(action: Callable[[], None], *signums: int, deadline_s: float | None = None) -> None:
+    """Run ``action`` (e.g. ``node.request_stop``) when one of ``signums`` arrives, on its own thread;
+    with ``deadline_s``, the process exits that long after the signal whether or not it has stopped.
 
     A handler runs in the main thread between two bytecodes, possibly while that thread holds a lock
     inside ``Event.wait``; setting an Event from the handler itself can then deadlock (seen: robot-io
     hung for good on SIGTERM after its supervisor was killed). The handler only starts a thread.
     """
 
+    def stop() -> None:
+        exit_within(deadline_s)
+        action()
+
     def handler(signum: int, frame: object) -> None:
-        threading.Thread(target=action, name=f"on-signal-{signum}", daemon=True).start()
+        threading.Thread(target=stop, name=f"on-signal-{signum}", daemon=True).start()
 
     for signum in signums:
         signal.signal(signum, handler)
 
 
 def run_until_stopped(
-    node: Node, duration: float = 0.0, signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGINT)
+    node: Node,
+    duration: float = 0.0,
+    signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGINT),
+    deadline_s: float = STOP_DEADLINE_S,
 ) -> None:
-    """Start ``node``, run until a signal, ``request_stop`` or ``duration`` s (0: no limit), then stop it."""
-    on_stop_signal(node.request_stop, *signums)
+    """Start ``node``, run until a signal, ``request_stop`` or ``duration`` s (0: no limit), then stop it
+    and exit within ``deadline_s``."""
+    on_stop_signal(node.request_stop, *signums, deadline_s=deadline_s)
     node.start()
     deadline = time.monotonic() + duration if duration > 0 else float("inf")
     try:
@@ -119,4 +149,5 @@ def run_until_stopped(
             if time.monotonic() >= deadline:
                 break
     finally:
+        exit_within(deadline_s)
         node.stop()

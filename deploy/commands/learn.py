@@ -28,6 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+LEARNER_STOP_DEADLINE_S = 30.0
+
+
 def run(args: argparse.Namespace) -> int:
     from bus.node import on_stop_signal
     from deploy.config import load_stack_config
@@ -37,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
     cfg = load_stack_config(args.config, learner=overrides)
     node = LearnerNode(cfg, control_token=operator_token(args))
-    on_stop_signal(node.request_stop, signal.SIGTERM, signal.SIGINT)
+    # Its last checkpoint and result are written on the way out: more time than a part's 10 s.
+    on_stop_signal(node.request_stop, signal.SIGTERM, signal.SIGINT, deadline_s=LEARNER_STOP_DEADLINE_S)
     lc = cfg.learner
     logging.info(
         "learner %s on '%s': %d steps (resuming at %d), checkpoints in %s",

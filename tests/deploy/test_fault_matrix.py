@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, open_session
 from deploy.config import load_stack_config
+from deploy.stack import PART_COMMANDS
 from monitor.recording import read
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals and /proc")
@@ -346,10 +348,16 @@ def _kill_the_supervisor_and_check_the_recording(run: Run) -> None:
     t_kill = time.time()
     run.up.send_signal(signal.SIGKILL)
     run.up.wait(timeout=10)
-    deadline = time.monotonic() + 20
+    deadline = time.monotonic() + 20  # a part's own stop deadline (bus.node.STOP_DEADLINE_S) is 10 s
     while parts_of(run.path):
-        assert time.monotonic() < deadline, f"orphaned parts: {parts_of(run.path)}"
+        left = parts_of(run.path)
+        assert time.monotonic() < deadline, f"orphaned parts: {left}\n" + "\n".join(
+            f"--- {name}.log:\n{run.log_tail(name)}" for name, cmd in PART_COMMANDS.items() if cmd in left
+        )
         time.sleep(0.2)
+    hung = {name: run.log_tail(name, 200) for name in PART_COMMANDS if "Timeout (" in run.log_tail(name, 200)}
+    if hung:  # gone in time, but only by the deadline's forced exit: keep its thread dump in the report
+        warnings.warn(f"parts that hung on their way out: {hung}", stacklevel=1)
     files = list((run.path.parent / "rec").glob("*.mcap"))
     assert len(files) == 1
     recorded = {(key, data) for key, _, _, data in read(files[0])}
