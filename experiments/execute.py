@@ -9,6 +9,7 @@ process, the Ray executor (``experiments.runner``) computes on a cluster node an
 from __future__ import annotations
 
 import json
+import platform
 import resource
 import socket
 import sys
@@ -86,6 +87,33 @@ def package_versions() -> dict[str, str | None]:
     return found
 
 
+# numpy's x86 SIMD levels, highest first: AVX-512, AVX2/FMA, SSE4.2/POPCNT.
+X86_LEVELS = ("X86_V4", "X86_V3", "X86_V2")
+
+
+def cpu_description() -> dict[str, str | None]:
+    """The CPU a run ran on: its model name and the highest x86 SIMD level numpy finds on it.
+
+    numpy and OpenBLAS (``DYNAMIC_ARCH``) pick their kernels by that level at run time, so the same code
+    and packages round differently on another CPU, and a chaotic env (NS CartPole, NS Pendulum) then
+    makes another run of the same seed. ``simd`` is None off x86 or where numpy does not say."""
+    model = None
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    model = model or platform.processor() or None
+    try:  # what numpy.show_runtime() reads; private, hence guarded
+        from numpy._core._multiarray_umath import __cpu_features__ as found
+    except ImportError:
+        found = {}
+    simd = next((level for level in X86_LEVELS if found.get(level)), None)
+    return {"model": model, "simd": simd}
+
+
 def code_version() -> dict[str, Any]:
     """The commit of the source tree this process imports, and whether its code/configs differ from it."""
     import subprocess
@@ -144,6 +172,7 @@ def compute_run(spec: RunSpec, code: dict[str, Any] | None = None, executor: str
         "python": sys.version.split()[0],
         "code": code if code is not None else code_version(),
         "packages": package_versions(),  # where the run ran (a Ray worker's, not the driver's)
+        "cpu": cpu_description(),
         "executor": executor,
         "host": socket.gethostname(),
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import platform
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,7 +18,7 @@ from paper_tiny import STEPS, TINY  # noqa: E402
 
 from deploy.cli import build_parser  # noqa: E402
 from experiments import stats  # noqa: E402
-from experiments.execute import execute_run  # noqa: E402
+from experiments.execute import X86_LEVELS, cpu_description, execute_run  # noqa: E402
 from experiments.metrics import run_metrics  # noqa: E402
 from experiments.paper import main_paper  # noqa: E402
 from experiments.plan import (  # noqa: E402
@@ -34,6 +35,7 @@ from experiments.report import finite_leaves  # noqa: E402
 from experiments.tables import format_cost  # noqa: E402
 from learner.registry import ALGOS  # noqa: E402
 
+X86 = platform.machine() in ("x86_64", "AMD64")
 FIGURES = ("main_results.png", "fast_comparison.png", "h_window.png", "summary_bars.png")
 # The first test here sets up the 48-run tiny plan (conftest.tiny_run): 2-4 min on 2 free cores, over
 # the 600 s default on a machine shared with other work (measured: 447 s at load 4).
@@ -45,6 +47,19 @@ def _finite_stat(stat: dict) -> None:
     for key in ("mean", "lo", "hi"):
         assert isinstance(stat[key], float) and math.isfinite(stat[key]), stat
     assert stat["lo"] - 1e-9 <= stat["mean"] <= stat["hi"] + 1e-9
+
+
+CPUINFO = Path("/proc/cpuinfo")
+
+
+@pytest.mark.skipif(not X86 or not CPUINFO.is_file(), reason="reads the x86 flags in /proc/cpuinfo")
+def test_a_run_names_the_simd_level_of_its_cpu() -> None:
+    """The level numpy reports agrees with the kernel's CPU flags (AVX-512 is V4, AVX2 without it V3)."""
+    flags = next(ln for ln in CPUINFO.read_text().splitlines() if ln.startswith("flags")).split()
+    expected = "X86_V4" if "avx512f" in flags else "X86_V3" if "avx2" in flags else "X86_V2"
+    cpu = cpu_description()
+    assert cpu["simd"] in X86_LEVELS and cpu["simd"] == expected, (cpu, expected)
+    assert cpu["model"]
 
 
 def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> None:
@@ -61,6 +76,7 @@ def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> No
         assert run["executor"] == "local" and TINY.get(run["algo"], {}).items() <= run["config"].items()
         assert 0 < run["wall_s"] and 20 < run["peak_rss_mb"] < 8000
         assert run["packages"]["numpy"] == np.__version__ and run["packages"]["gymnasium"] == gym.__version__
+        assert run["cpu"] == cpu_description() and (run["cpu"]["simd"] is not None or not X86)
         steps = run["episodes"]["global_step"]
         assert steps and steps == sorted(steps) and steps[-1] <= STEPS
         assert len(run["episodes"]["ret"]) == len(steps)
