@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from experiments.machines import machines
 from experiments.plans import (
     DEFAULT_METHOD,
     DRIFT_PAIRS,
@@ -505,6 +506,7 @@ def plans_aggregate(plan: PlansPlan, runs: dict[str, dict[str, Any]], paper_dir:
         "stale_runs": stale,
         "code_commits": _count([str((r.get("code") or {}).get("commit")) for r in runs.values()]),
         "dirty_runs": sum((r.get("code") or {}).get("dirty") is not False for r in runs.values()),
+        "machines": machines(runs),
         "per_run": {name: run_numbers(r) for name, r in sorted(runs.items())},
     }
 

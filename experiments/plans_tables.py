@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from experiments.tables import _fmt, format_verdicts
+from experiments.tables import _fmt, format_machines, format_verdicts
 
 
 def _digits(setting: str) -> int:
@@ -237,7 +237,9 @@ def write_plans_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
     if summary["missing_runs"]:
         lines += [f"Missing runs ({len(summary['missing_runs'])}): " + ", ".join(summary["missing_runs"]), ""]
     lines += [
-        f"Code: {summary['code_commits']} (commit: runs); runs from a modified tree: {summary['dirty_runs']}."
+        f"Code: {summary['code_commits']} (commit: runs); runs from a modified tree: "
+        f"{summary['dirty_runs']}.",
+        *format_machines(summary),
     ]
     if summary.get("stale_runs"):
         lines += ["Runs made under other hyperparameters than today's: " + ", ".join(summary["stale_runs"])]

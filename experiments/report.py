@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from experiments.figures import make_figures
+from experiments.machines import machines
 from experiments.metrics import FINAL_FRACTION, RETURN_WINDOW
 from experiments.plan import DRIFT_KEYS, ENVS, SPEED_ENVS, Plan
 from experiments.stats import N_BOOT, bootstrap_mean
@@ -160,6 +161,7 @@ def aggregate(plan: Plan, runs: dict[str, dict[str, Any]]) -> dict[str, Any]:
         # Which code produced the runs: commits (with run counts) and runs made from a modified tree.
         "code_commits": _count([str((r.get("code") or {}).get("commit")) for r in runs.values()]),
         "dirty_runs": sorted(n for n, r in runs.items() if (r.get("code") or {}).get("dirty") is not False),
+        "machines": machines(runs),
     }
 
 

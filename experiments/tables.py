@@ -6,6 +6,7 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
+from experiments.machines import mixed_machines
 from experiments.plan import ALGO_LABELS
 
 
@@ -62,7 +63,7 @@ def write_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
     lines += ["", "## Verdicts", "", format_verdicts(summary, markdown=True), ""]
     if summary["missing_runs"]:
         lines += [f"Missing runs ({len(summary['missing_runs'])}): " + ", ".join(summary["missing_runs"]), ""]
-    lines += [f"Code: {summary['code_commits']} (commit: runs)."]
+    lines += [f"Code: {summary['code_commits']} (commit: runs)."] + format_machines(summary)
     if summary.get("dirty_runs"):
         lines += [f"Runs from a modified or unknown tree: {', '.join(summary['dirty_runs'])}", ""]
     if summary.get("stale_runs"):
@@ -103,6 +104,20 @@ def format_cost(summary: dict[str, Any], markdown: bool = False) -> str:
     fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
     lines = textwrap.wrap("Cost per method: " + note, width=110)
     return "\n".join([*lines, fmt.format(*head), *(fmt.format(*r) for r in rows)])
+
+
+def format_machines(summary: dict[str, Any]) -> list[str]:
+    """summary.md's lines on which CPUs made the runs, and a warning where one setting's runs span several."""
+    counts = summary.get("machines") or {}
+    lines = ["Machines (CPU: runs) per setting: " + "; ".join(f"{env}: {by}" for env, by in counts.items())]
+    mixed = mixed_machines(counts)
+    if mixed:
+        lines += [
+            "Settings whose runs come from more than one CPU (or an unrecorded one): "
+            + ", ".join(mixed)
+            + ". On NS CartPole and NS Pendulum a seed's run differs from one SIMD level to another."
+        ]
+    return lines
 
 
 def format_verdicts(summary: dict[str, Any], markdown: bool = False) -> str:

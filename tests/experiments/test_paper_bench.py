@@ -19,6 +19,7 @@ from paper_tiny import STEPS, TINY  # noqa: E402
 from deploy.cli import build_parser  # noqa: E402
 from experiments import stats  # noqa: E402
 from experiments.execute import X86_LEVELS, cpu_description, execute_run  # noqa: E402
+from experiments.machines import machine_of, machines, mixed_machines  # noqa: E402
 from experiments.metrics import run_metrics  # noqa: E402
 from experiments.paper import main_paper  # noqa: E402
 from experiments.plan import (  # noqa: E402
@@ -60,6 +61,22 @@ def test_a_run_names_the_simd_level_of_its_cpu() -> None:
     cpu = cpu_description()
     assert cpu["simd"] in X86_LEVELS and cpu["simd"] == expected, (cpu, expected)
     assert cpu["model"]
+
+
+def test_a_setting_whose_runs_span_cpus_is_named_mixed() -> None:
+    """One front drawn on two SIMD levels, or beside runs that do not say, is not one machine's."""
+    v4, v3 = {"model": "EPYC", "simd": "X86_V4"}, {"model": "EPYC", "simd": "X86_V3"}
+    runs = {
+        "a0": {"env": "a", "cpu": v4},
+        "a1": {"env": "a", "cpu": v4},
+        "b0": {"env": "b", "cpu": v4},
+        "b1": {"env": "b", "cpu": v3},
+        "c0": {"env": "c", "cpu": v4},
+        "c1": {"env": "c"},
+    }
+    counts = machines(runs)
+    assert counts["a"] == {"EPYC (X86_V4)": 2} and counts["c"] == {"EPYC (X86_V4)": 1, "unrecorded": 1}
+    assert mixed_machines(counts) == ["b", "c"]
 
 
 def test_every_run_finishes_with_its_own_file(tiny_run: tuple[Path, dict]) -> None:
@@ -137,6 +154,9 @@ def test_summary_fields_exist_and_are_finite(tiny_run: tuple[Path, dict]) -> Non
     assert set(on_disk["per_run"]) == {p.stem for p in (out / "runs").glob("*.json")}
     assert sum(on_disk["code_commits"].values()) == len(on_disk["per_run"])  # every run names its commit
     assert "None" not in on_disk["code_commits"]
+    here = machine_of({"cpu": cpu_description()})  # every run was made here, on this one CPU
+    assert on_disk["machines"] == {env: {here: 2 * len(PAPER_ALGOS)} for env in sorted(ENVS)}
+    assert mixed_machines(on_disk["machines"]) == []
     level = on_disk["verdicts"]["level_with_best_off_policy"]["comparisons"]
     assert len(level) == len(ENVS) and all(k.split(":")[1] in ("td3", "ddpg", "sac") for k in level)
     assert all(c["decided_on"] == "paired" for c in level.values())

@@ -95,6 +95,8 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
     on_disk = json.loads((out / "summary.json").read_text())
     assert finite_leaves(on_disk) == []
     assert set(on_disk["settings"]) == set(SETTING_KEYS)
+    assert set(on_disk["machines"]) == set(SETTING_KEYS)  # every setting's runs from this one machine
+    assert all(len(by_cpu) == 1 and "unrecorded" not in by_cpu for by_cpu in on_disk["machines"].values())
     for s in on_disk["settings"].values():
         assert [f["H"] for f in s["front"]] == [1, 5]
         assert s["front"][0]["replans_per_100"]["mean"] == pytest.approx(100.0)
