@@ -95,8 +95,8 @@ def cpu_description() -> dict[str, str | None]:
     """The CPU a run ran on: its model name and the highest x86 SIMD level numpy finds on it.
 
     numpy and OpenBLAS (``DYNAMIC_ARCH``) pick their kernels by that level at run time, so the same code
-    and packages round differently on another CPU, and a chaotic env (NS CartPole, NS Pendulum) then
-    makes another run of the same seed. ``simd`` is None off x86 or where numpy does not say."""
+    and packages round differently on another CPU, and the envs (NS CartPole and NS Pendulum most) turn
+    that into another run of the same seed. ``simd`` is None off x86 or where numpy does not say."""
     model = None
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():

@@ -115,7 +115,7 @@ def format_machines(summary: dict[str, Any]) -> list[str]:
         lines += [
             "Settings whose runs come from more than one CPU (or an unrecorded one): "
             + ", ".join(mixed)
-            + ". On NS CartPole and NS Pendulum a seed's run differs from one SIMD level to another."
+            + ". A seed's run differs from one SIMD level to another (NS CartPole and NS Pendulum most)."
         ]
     return lines
 
