@@ -64,7 +64,7 @@ def test_a_run_names_the_simd_level_of_its_cpu() -> None:
     """The level a run records is the highest whose features the kernel lists for this CPU."""
     flags = set(next(ln for ln in CPUINFO.read_text().splitlines() if ln.startswith("flags")).split())
     expected, needed = None, set()
-    for level in ("X86_V2", "X86_V3", "X86_V4"):
+    for level in reversed(X86_LEVELS):  # lowest first: each level needs the ones below
         needed |= LEVEL_FLAGS[level]
         if needed <= flags:
             expected = level
