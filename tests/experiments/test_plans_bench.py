@@ -24,7 +24,7 @@ from experiments.plans import (
     method_label,
 )
 from experiments.plans_bench import main_plans
-from experiments.plans_report import front_gap, run_numbers
+from experiments.plans_report import best_fixed_h_per_seed, front_gap, front_gap_if_best, run_numbers
 from experiments.report import finite_leaves
 
 FIGURES = ("front.png", "latency.png", "h_drift.png")
@@ -120,6 +120,8 @@ def test_summary_has_front_points_latency_drift_and_baselines(tiny: tuple[Path, 
             assert set(paired["per_seed"]) == {"0", "1"} and paired["lo"] <= paired["diff"] <= paired["hi"]
             assert p["vs_H1_paired"]["n_a"] == 2 and p["vs_H1_paired"]["fewer_replans"] >= 1
             assert set(p["minus_H5_per_seed"]) == {"0", "1"}
+            best = p["vs_front_if_best_fixed_H"]  # the best fixed H on each seed, at the point's rates
+            assert len(best["returns"]) == 2 and best["lo"] <= best["diff"] <= best["hi"]
     base = on_disk["settings"]["cartpole_fast"]["baselines"]
     assert base["td3"]["seeds"] == [0] and base["td3"]["final_return"]["mean"] == 100.0
     assert on_disk["settings"]["cartpole_slow"]["baselines"] == {}
@@ -229,6 +231,33 @@ def test_front_gap_interpolates_in_log_rate() -> None:
     assert gap["lo"] == pytest.approx(3.0) and gap["hi"] == pytest.approx(3.0)
     low = front_gap(front, ([2.0, 2.0], [4.0, 4.0]))  # below the front's range: clamped to H's end
     assert low["extrapolated"] and low["diff"] == pytest.approx(-6.0)
+
+
+def test_the_best_fixed_h_is_taken_per_seed_and_placed_at_the_points_rates() -> None:
+    def group(h: int, rets: list[float]) -> dict:
+        return {
+            "H": h,
+            "seeds": [0, 1],
+            "per_seed": {"replans_per_100": [100.0 / h] * 2, "final_return": rets},
+        }
+
+    front = [group(1, [5.0, 1.0]), group(10, [2.0, 9.0])]
+    pairs = [(f["per_seed"]["replans_per_100"], f["per_seed"]["final_return"]) for f in front]
+    assert best_fixed_h_per_seed(front, [1, 0]) == [9.0, 5.0]
+    assert best_fixed_h_per_seed(front, [0, 2]) is None  # seed 2 has no fixed-H run
+    point = {
+        "n": 2,
+        "seeds": [0, 1],
+        "per_seed": {"replans_per_100": [10.0, 10.0], "final_return": [0.0, 0.0]},
+    }
+    got = front_gap_if_best(front, pairs, point, seed=0)
+    # at rate 10 the front's mean is (2 + 9) / 2; the best per seed is (5 + 9) / 2: +1.5
+    assert got["returns"] == [5.0, 9.0] and got["diff"] == pytest.approx(1.5)
+    assert got == {
+        **front_gap(pairs, ([10.0, 10.0], [5.0, 9.0])),
+        "outcome": got["outcome"],
+        "returns": [5.0, 9.0],
+    }
 
 
 def test_plan_order_and_shape() -> None:
