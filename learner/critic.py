@@ -17,16 +17,13 @@ Three feature maps share the recursion:
   ignored in the expectation). The same closed form gives the policy's value ``V(s) = E_a Q̂(s,a)`` and
   the paper's ``D(s) = ∫ Q̂(s,a) Σ⁻¹(a - h(s)) π(a|s) da`` (eq. 9) exactly, as the derivative of
   ``E_a Q̂`` in the mean (Stein's lemma): :meth:`KLSTDCritic.expected_gradient`. Its features do not
-  depend on the policy, so nothing goes stale when the policy moves. Measured on NS Pendulum
-  (bench/learner_diagnosis.py): a one-step action moves the swing-up's return by about 0.5-1 while
-  ``Q̂``'s approximation error is tens, so its action slope agreed in sign with the true ``dQ/da`` at
-  about half the states and learning failed (final return -1259 over 3 seeds at 10k steps).
+  depend on the policy, so nothing goes stale when the policy moves; but where an action's effect on
+  the return is small against ``Q̂``'s error its action slope is noise (NS Pendulum: docs/learner.md).
 - ``compatible``: per center ``[k_j, k_j · score(s,a)]`` (the paper's ``φ(s,a) = k(s,·)Σ⁻¹(a - h(s))``
   plus a value baseline); the advantage is the compatible part, and its expectation over actions,
   ``w(s)/σ̃²``, the natural-gradient direction (``expected_gradient``). Its features depend on the
-  policy, so they go stale after each policy update (measured: unstable learning with the sampled
-  gradient; with the expected one on NS Pendulum -370 over 5 seeds against -331 for the value critic
-  with the same options); kept for the comparison.
+  policy, so they go stale after each policy update (unstable with the sampled gradient, no better than
+  the value critic with the expected one: docs/learner.md); kept for the comparison.
 
 The value critic can also remove the state-only part of its TD error, ``B(s) ≈ E_a[δ | s]`` (its
 Bellman residual), from the advantage (``residual_memory``; :meth:`KLSTDCritic.residual`), and counts

@@ -2,8 +2,8 @@
 
 ``μ(s) = c + r ⊙ tanh(f(s))`` where ``f ∈ H`` is the RKHS function of the paper's ``h`` and ``c, r`` are
 the box's centre and half-range. The squash keeps the mean inside the box: a mean that drifts
-outside makes every clipped action the same and nothing pulls it back (measured: CartPole returns
-collapse to ~9). Weight decay on ``f`` relaxes saturated regions back toward the centre.
+outside makes every clipped action the same and nothing pulls it back. Weight decay on ``f`` relaxes
+saturated regions back toward the centre.
 Actions are clipped to the box for execution only; likelihood and gradient use the unclipped sample.
 """
 
@@ -62,9 +62,9 @@ class RKHSGaussianPolicy:
         """The paper's ``Σ⁻¹(a - h(s))`` in f's units: ``r ⊙ Σ⁻¹(a - μ(s))``.
 
         The exact derivative through the squash carries ``1 - tanh²(f)``, which vanishes where the
-        mean saturates: measured, the policy then sits at a box edge with a zero gradient for whole
-        episodes. This straight-through form keeps the sign and scale of the paper's gradient, and
-        weight decay pulls saturated regions back.
+        mean saturates, and the policy then sits at a box edge with a zero gradient for whole episodes.
+        This straight-through form keeps the sign and scale of the paper's gradient, and weight decay
+        pulls saturated regions back.
         """
         return self._score(raw_action - self.mean(s))
 
@@ -84,11 +84,10 @@ class RKHSGaussianPolicy:
         """``g`` without the components that would push ``|f(s)|`` further past ``limit``.
 
         The straight-through score keeps pushing ``f`` where the mean already sits at the box edge, and
-        nothing but weight decay pulls it back: measured on NS Pendulum, ``|f|`` reached a median of 40
-        (90th percentile 470) at the visited states within 10k steps, the mean a frozen bang-bang map
-        that one sample (a step of at most ``alpha · max_grad_norm`` = 2) cannot move. Dropping the
-        outward component past ``limit`` (``tanh(3) = 0.995``) projects the step onto ``|f(s)| ≤ limit``
-        at the sample's state; ``None`` keeps the unbounded straight-through step.
+        nothing but weight decay pulls it back, until the mean is a frozen bang-bang map that one sample
+        cannot move (NS Pendulum: docs/learner.md). Dropping the outward component past ``limit``
+        (``tanh(3) = 0.995``) projects the step onto ``|f(s)| ≤ limit`` at the sample's state; ``None``
+        keeps the unbounded straight-through step.
         """
         if limit is None:
             return g

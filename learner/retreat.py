@@ -7,8 +7,8 @@ the agent retreats: drops the rest of its queued actions and updates.
 
 The theorem speaks of the *expected* gradient ``D(s)ρ(s)``, not of one sample. Taken literally on
 per-sample gradients ``k(s0,si) g0ᵀgi`` (mode ``literal``) the test reads the sign of exploration
-noise: on a prototype it fired every 2-3 steps whatever the world did. Both other modes estimate the
-expected gradient field first:
+noise, whatever the world does (docs/learner.md). Both other modes estimate the expected gradient field
+first:
 
     G ← (1-λ) G + λ k(s_t,·) g_t/‖g_t‖
 
@@ -22,12 +22,11 @@ Exploration noise averages out; a systematic change of the gradient rotates ``G`
   with the tightest ``ε`` the statement allows at ``s0``, ``ε = ‖k(s0,·)G(s0)‖² = ‖G(s0)‖²``.
   Dividing by it gives the scale-free statistic ``k(s0,si) G(s0)ᵀG(si) / ‖G(s0)‖²`` and the
   threshold ``Z/2`` (capped at 1/2). It fires when the state leaves the kernel's reach of ``s0`` or
-  the estimated ascent directions at ``s0`` and ``si`` disagree. (Freezing ``G(s0)`` at the segment's
-  start instead was tried: H came out shorter under drift, but learning collapsed on 5 of 6 runs,
-  the mean saturating at a box edge.)
+  the estimated ascent directions at ``s0`` and ``si`` disagree. Both gradients come from the current
+  field: one frozen at the segment's start destabilised learning (docs/learner.md).
 - ``smoothed``: the whole field, ``G_0`` when the segment opened against ``G_i`` now. At ``s'=s0`` eq.
   37 makes ``⟨G_0, G_0⟩`` equal ``Z ε``; dividing the bound ``⟨G_0, G_i⟩ ≥ Z ε / 2`` by it leaves the
-  projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H ≥ 1/2``. Measured, it acts as a timer: each step
+  projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H ≥ 1/2``. It acts as a timer: each step
   shrinks the ratio by ``1-λ`` and local agreement adds little against the global norm, so
   ``H ≈ ln 2 / λ`` whatever the world does.
 - ``plan`` (for plan execution, ``learner.plans``): the same inner product taken where plan and world
