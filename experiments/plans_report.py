@@ -189,13 +189,9 @@ def front_gap_paired(front: list[dict[str, Any]], point: dict[str, Any], seed: i
 def best_fixed_h_per_seed(front: list[dict[str, Any]], seeds: list[int]) -> list[float] | None:
     """On each seed, the highest final return any fixed H reached there (a per-seed oracle over H); None
     when some seed has no fixed-H run."""
-    best = []
-    for s in seeds:
-        finals = [finals_by_seed(f)[s] for f in front if s in f["seeds"]]
-        if not finals:
-            return None
-        best.append(max(finals))
-    return best
+    by_h = [finals_by_seed(f) for f in front]
+    best = [max((finals[s] for finals in by_h if s in finals), default=None) for s in seeds]
+    return None if None in best else best
 
 
 def front_gap_if_best(
