@@ -16,6 +16,7 @@ from collections.abc import Callable, MutableSequence
 from typing import Any, TypeVar
 
 import numpy as np
+from polling import wait_until
 
 from bus import messages as m
 from bus.messages import Message, Topic
@@ -56,14 +57,12 @@ class BusProbe:
 
     def wait(self, pred: Callable[[], Any], timeout: float = 10.0, what: str = "the condition") -> Any:
         """``pred()``'s first truthy value (evaluated under the lock); AssertionError after ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+
+        def locked() -> Any:
             with self.lock:
-                out = pred()
-            if out:
-                return out
-            time.sleep(0.01)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+                return pred()
+
+        return wait_until(locked, timeout, what)
 
 
 # A ChunkStatus must say why its chunk and its preemptor were made (every enum is set on the wire).

@@ -21,6 +21,7 @@ import yaml
 import zenoh
 from bus_probe import BusProbe
 from loopback import free_port, unique_name
+from polling import wait_until
 from stack_helpers import learn_one_episode, running_part
 
 from bus import messages as m
@@ -88,15 +89,6 @@ def bus(tmp_path_factory):
     router.close()
 
 
-def _wait(pred, timeout=5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 def _heard(listener: Bus, *keys: str) -> dict[str, list[bytes]]:
     got: dict[str, list[bytes]] = {k: [] for k in keys}
     for k in keys:
@@ -121,7 +113,10 @@ def test_the_learner_commands_and_every_identity_reads(bus):
     time.sleep(0.5)  # the subscriptions reach the publishers through the router
     learner.session.put(learner.key("cmd/chunk"), b"chunk 1")
     robot.session.put(robot.key("cmd/status"), b"chunk 1 executed")
-    assert _wait(lambda: at_robot["cmd/chunk"] and at_vision["cmd/chunk"] and at_learner["cmd/status"])
+    wait_until(
+        lambda: at_robot["cmd/chunk"] and at_vision["cmd/chunk"] and at_learner["cmd/status"],
+        what="the learner's chunk at robot-io and vision, and robot-io's status at the learner",
+    )
     assert at_robot["cmd/chunk"] == at_vision["cmd/chunk"] == [b"chunk 1"]
     replies = list(learner.session.get(learner.key(m.RESET), payload=b"seed 3", timeout=5))
     assert [r.ok.payload.to_bytes() for r in replies] == [b"reset done"]
@@ -183,7 +178,10 @@ def test_only_the_learner_puts_commands_and_only_the_monitor_controls(bus):
     ids["vision"].declare_alive("learner/impostor")  # a stranger claiming to be a learner session
     ids["vision"].declare_alive("vision")
     ids["learner"].declare_alive("learner")
-    assert _wait(lambda: got["cmd/chunk"] and got["cmd/status"] and got["control"] and len(alive) >= 2)
+    wait_until(
+        lambda: got["cmd/chunk"] and got["cmd/status"] and got["control"] and len(alive) >= 2,
+        what="a chunk, a status, a control and two tokens",
+    )
     time.sleep(0.5)  # anything else would have arrived by now
     assert got == {"cmd/chunk": [b"learner"], "cmd/status": [b"robot-io"], "control": [b"monitor"]}
     assert sorted(alive) == ["learner", "vision"]  # vision's own token arrives, its learner one does not
@@ -224,7 +222,7 @@ def test_user_password_alone_identifies_by_user_name(tmp_path):
         time.sleep(0.5)
         buses[1].session.put(buses[1].key("cmd/chunk"), b"vision")
         buses[0].session.put(buses[0].key("cmd/chunk"), b"learner")
-        assert _wait(lambda: got["cmd/chunk"])
+        wait_until(lambda: got["cmd/chunk"], what="a chunk")
         time.sleep(0.3)
         assert got["cmd/chunk"] == [b"learner"]
         wrong = {**auth, "password_file": str(certs / "vision.password")}

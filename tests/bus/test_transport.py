@@ -7,6 +7,7 @@ import time
 import pytest
 from bus_probe import LABELS
 from loopback import unique_name
+from polling import wait_until
 
 from bus import messages as m
 from bus.transport import Bus, ZenohConfig, open_session
@@ -22,15 +23,6 @@ def buses(endpoint):
     a.close()
 
 
-def _wait(pred, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def test_publisher_stamps_and_subscriber_decodes(buses):
     a, b = buses
     got, bad = [], []
@@ -43,7 +35,7 @@ def test_publisher_stamps_and_subscriber_decodes(buses):
         for i in range(3)
     ]
     a.session.put(a.key(m.CHUNK_STATUS), b"\xff\xff not protobuf")
-    assert _wait(lambda: len(got) == 3 and bad)
+    wait_until(lambda: len(got) == 3 and bad, what="three statuses and the bad bytes")
     assert seqs == [41, 42, 43] and [s.seq for s in got] == seqs
     assert all(before <= s.stamp <= time.time() for s in got)
     assert bad[0][0] == "cmd/status" and "ChunkStatus: undecodable" in bad[0][1]
@@ -100,10 +92,10 @@ def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
     try:
         bus.watch_alive(lambda who, alive: seen.update({who: (alive, time.monotonic())}))
         assert child.stdout.readline().strip() == "up"
-        assert _wait(lambda: seen.get("learner", (False,))[0], 10)
+        wait_until(lambda: seen.get("learner", (False,))[0], 10, "the peer's token")
         t0 = time.monotonic()
         os.kill(child.pid, signal.SIGSTOP)
-        assert _wait(lambda: not seen["learner"][0], 5), "the stalled peer was not noticed within 5 s"
+        wait_until(lambda: not seen["learner"][0], 5, "the stalled peer to be noticed")
         assert seen["learner"][1] - t0 < 2.5
     finally:
         child.kill()
@@ -126,26 +118,34 @@ def test_a_renewed_session_keeps_every_declaration(endpoint):
         part.declare_alive("learner")
         pub, control = part.publisher(m.CHUNK_STATUS), hub.publisher(m.CONTROL)
         status = m.ChunkStatus(chunk_seq=1, preempted_by=-1, verdict=m.ChunkStatus.ACCEPTED, **LABELS)
-        assert _wait(lambda: ("learner", True) in alive)
+        wait_until(lambda: ("learner", True) in alive, what="the part's token")
         time.sleep(0.3)
         pub.put(status)
-        assert _wait(lambda: len(heard) == 1)
+        wait_until(lambda: len(heard) == 1, what="the first status")
         old = part.session
 
         assert part.renew() and part.session is not old and part.renewals == 1
         # The old session is closed, so the token the hub sees now is the fresh one's. Zenoh may or may
         # not report the old token's end first: the fresh token can reach the hub before it on the other
         # link, and a key with a token left is not reported gone.
-        assert _wait(lambda: alive[-1] == ("learner", True) and hub.alive_now("learner")), alive
+        wait_until(
+            lambda: alive[-1] == ("learner", True) and hub.alive_now("learner"),
+            what=lambda: f"the fresh token (the hub saw {alive})",
+        )
         time.sleep(0.3)  # the fresh session's declarations reach the hub
         assert pub.put(status) == 2
         control.put(m.Control(command=m.Control.PAUSE, jog=[0, 0, 0]))
-        assert _wait(lambda: len(heard) == 2 and len(got) == 1)
+        wait_until(
+            lambda: len(heard) == 2 and len(got) == 1, what="a status and a control through the fresh session"
+        )
         assert hub.query(m.RESET, m.ResetRequest(seed=7), timeout=5).detail == "seed 7"
         time.sleep(0.3)
         assert [s.seq for s in heard] == [1, 2] and len(got) == 1  # nothing twice
         part.close()
-        assert _wait(lambda: alive[-1] == ("learner", False)), alive  # the fresh token went with it
+        wait_until(
+            lambda: alive[-1] == ("learner", False),
+            what=lambda: f"the fresh token to go (the hub saw {alive})",
+        )
     finally:
         part.close()
         hub.close()
@@ -194,14 +194,14 @@ def test_a_part_stalled_for_about_a_lease_is_heard_again(endpoint):
     try:
         probe.subscribe(m.CHUNK_STATUS, lambda msg: last.__setitem__(0, time.monotonic()))
         assert child.stdout.readline().strip() == "up"
-        assert _wait(lambda: time.monotonic() - last[0] < 0.1, 10)
+        wait_until(lambda: time.monotonic() - last[0] < 0.1, 10, "the part's statuses")
         for stall in (0.8, 1.0, 1.2):
             os.kill(child.pid, signal.SIGSTOP)
             time.sleep(stall)
             os.kill(child.pid, signal.SIGCONT)
             resumed = time.monotonic()
-            assert _wait(lambda t=resumed: last[0] > t + 0.5, 5), (
-                f"the part was not heard again after a {stall} s stop"
+            wait_until(
+                lambda t=resumed: last[0] > t + 0.5, 5, f"the part to be heard again after a {stall} s stop"
             )
     finally:
         child.kill()
@@ -215,7 +215,7 @@ def test_alive_now_asks_the_network_whether_a_token_exists(buses):
     """``alive_now`` does not rely on a subscriber having heard of the token: it queries the network."""
     a, b = buses
     a.declare_alive("learner/abc")
-    assert _wait(lambda: b.alive_now("learner/abc", timeout=1.0))
+    wait_until(lambda: b.alive_now("learner/abc", timeout=1.0), what="the token on the network")
     assert not b.alive_now("learner/nobody", timeout=1.0)
     assert a.alive_now("learner/abc", timeout=1.0)  # its own token too
 
@@ -243,7 +243,7 @@ def test_with_the_stacks_key_only_signed_new_events_arrive_and_floods_log_a_line
         time.sleep(0.3)
         genuine = m.RetreatEvent(segment=1, H=4, reason=m.RetreatEvent.RETREAT)
         pub.put(genuine)
-        assert _wait(lambda: len(got) == 1)
+        wait_until(lambda: len(got) == 1, what="the genuine event")
         wire = reader.key(m.EVENTS_RETREAT)
         with caplog.at_level("WARNING", logger="bus.transport"):
             for i in range(300):
@@ -252,7 +252,7 @@ def test_with_the_stacks_key_only_signed_new_events_arrive_and_floods_log_a_line
                 sign(forged, mac_key("another stack"))
                 part.session.put(wire, forged.SerializeToString())  # foreign
                 part.session.put(wire, genuine.SerializeToString())  # an exact copy of a genuine one
-            assert _wait(lambda: reader.bad_messages.get("events/retreat", 0) == 900)
+            wait_until(lambda: reader.bad_messages.get("events/retreat", 0) == 900, what="900 refusals")
         assert [e.segment for e in got] == [1]
         lines = [r for r in caplog.records if "events/retreat" in r.getMessage()]
         assert 2 <= len(lines) <= 3, [r.getMessage() for r in lines]  # forged, replayed: first in full

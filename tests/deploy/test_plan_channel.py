@@ -7,6 +7,7 @@ import threading
 import time
 
 import numpy as np
+from polling import wait_until
 
 from bus import messages as m
 from deploy.plan_channel import DelayedSender, PlanBook, cap_steps, played
@@ -30,9 +31,7 @@ def test_delayed_sender_keeps_order_and_forgets_on_cancel():
         for k in range(3):
             sender.submit(k)
         assert time.monotonic() - t0 < 0.05 and out == []  # submit never waits
-        deadline = time.monotonic() + 3
-        while len(out) < 3 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: len(out) >= 3, 3, "three plans sent")
         assert [k for k, _ in out] == [0, 1, 2] and out[0][1] - t0 >= 0.15
         sender.submit("last episode")
         assert sender.cancel() == 1

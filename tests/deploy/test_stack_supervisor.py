@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from polling import wait_until
 from stack_helpers import PARTS, parts_of, write_stack_config
 
 from common.heap import ALLOCATOR_ENV
@@ -105,14 +106,9 @@ def test_a_parts_fork_is_not_the_part(tmp_path):
     config = tmp_path / "sim.yaml"
     code = "import os, time\nif os.fork() == 0:\n    time.sleep(30)\n    os._exit(0)\ntime.sleep(30)"
     part = subprocess.Popen([sys.executable, "-c", code, "deploy.cli", "vision", "--config", str(config)])
+    children_file, children = Path(f"/proc/{part.pid}/task/{part.pid}/children"), []
     try:
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            children = Path(f"/proc/{part.pid}/task/{part.pid}/children").read_text().split()
-            if children:
-                break
-            time.sleep(0.05)
-        assert children, "the part did not fork"
+        children = wait_until(lambda: children_file.read_text().split(), 10, "the part to fork", every=0.05)
         assert parts_of(config) == {"vision": part.pid}
     finally:
         for pid in children:

@@ -20,6 +20,7 @@ from pathlib import Path
 import websockets
 from loopback import unique_name
 from mcap.reader import make_reader
+from polling import wait_until
 from stack_helpers import write_stack_config
 from test_recording import KEY, STRANGER, schema_decoder
 
@@ -109,9 +110,7 @@ def test_recorded_scene_shows_the_plan_and_the_cut_rest(tmp_path: Path, endpoint
         for topic, msg in sent:  # paced as the parts send them: the recorder's subscribers are per key
             session.put(topic.key("fx"), msg.SerializeToString())
             time.sleep(0.02)
-        deadline = time.monotonic() + 5
-        while recorder.count < len(sent) and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: recorder.count == len(sent), 5, "the recorder to take every message")
     finally:
         recorder.close()
         session.close()
@@ -251,9 +250,9 @@ def test_live_view_with_the_key_shows_only_the_stack_s_messages(endpoint: str) -
     try:
         for msg in sent:  # one key, one session: they arrive in this order
             session.put(m.TARGET.key(robot), msg.SerializeToString())
-        deadline = time.monotonic() + 5
-        while (strict.deriver.target, lenient.deriver.target) != (last, last) and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(
+            lambda: (strict.deriver.target, lenient.deriver.target) == (last, last), 5, "the last target"
+        )
     finally:
         strict.close()
         lenient.close()

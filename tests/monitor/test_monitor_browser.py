@@ -13,6 +13,7 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from polling import wait_until
 from stack_helpers import write_stack_config
 
 CHROMIUM = "/usr/bin/chromium"
@@ -38,16 +39,6 @@ def _state(url: str) -> dict:
         return json.loads(r.read())
 
 
-def _wait(pred, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        out = pred()
-        if out:
-            return out
-        time.sleep(0.2)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
 def test_monitor_in_chromium(tmp_path):
     from playwright.sync_api import sync_playwright
 
@@ -71,13 +62,17 @@ def test_monitor_in_chromium(tmp_path):
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             page.goto(url)
-            _wait(lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page")
-            _wait(lambda: "executed" in page.inner_text("#plans"), 30, "plans on the page")
+            wait_until(
+                lambda: int(page.inner_text("#retreats")) > 0, 90, "retreat events on the page", every=0.2
+            )
+            wait_until(lambda: "executed" in page.inner_text("#plans"), 30, "plans on the page", every=0.2)
             plans = _state(url)["plans"]
             assert plans and all(len(p["planned"]) == p["n"] + 1 for p in plans)  # the path travels along
             assert page.input_value("#token") == ""
             page.click("#estop")  # no token typed yet: an e-stop needs none
-            _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "the page showing estop")
+            wait_until(
+                lambda: page.inner_text("#mode").lower() == "estop", 10, "the page showing estop", every=0.2
+            )
             ee0 = _state(url)["robot"]["ee"]
             step0 = _state(url)["robot"]["chunk_seq"]
             time.sleep(2.0)
@@ -94,10 +89,12 @@ def test_monitor_in_chromium(tmp_path):
             assert page.evaluate("sessionStorage.getItem('adaptiveh-token')") == token
             assert page.evaluate("JSON.stringify(localStorage)") == "{}"  # not kept beyond the tab
             page.click("#release")
-            _wait(lambda: page.inner_text("#mode").lower() == "running", 10, "release")
+            wait_until(lambda: page.inner_text("#mode").lower() == "running", 10, "release", every=0.2)
             seg = int(page.inner_text("#segments"))
-            _wait(lambda: int(page.inner_text("#segments")) > seg, 30, "learning to resume")
-            _wait(lambda: "ep " in page.inner_text("#learner"), 30, "learner telemetry on the page")
+            wait_until(lambda: int(page.inner_text("#segments")) > seg, 30, "learning to resume", every=0.2)
+            wait_until(
+                lambda: "ep " in page.inner_text("#learner"), 30, "learner telemetry on the page", every=0.2
+            )
             # Tests write only to temporary folders; the README's picture is refreshed on request, with
             # ADAPTIVEH_MONITOR_SCREENSHOT=results/monitor_screenshot.png (this file's test alone).
             shot = Path(os.environ.get("ADAPTIVEH_MONITOR_SCREENSHOT", str(tmp_path / "monitor_full.png")))
@@ -106,13 +103,15 @@ def test_monitor_in_chromium(tmp_path):
             # A control with a wrong token is refused; the E-STOP still stops.
             page.fill("#token", "wrong")
             page.click("#pause")
-            _wait(lambda: "refused" in page.inner_text("#reply"), 5, "a refusal")
+            wait_until(lambda: "refused" in page.inner_text("#reply"), 5, "a refusal", every=0.2)
             page.click("#estop")
-            _wait(lambda: page.inner_text("#mode").lower() == "estop", 10, "estop with a wrong token")
+            wait_until(
+                lambda: page.inner_text("#mode").lower() == "estop", 10, "estop with a wrong token", every=0.2
+            )
             # An old bookmark's ?token= is moved into the tab's sessionStorage and off the address bar.
             old = browser.new_page()
             old.goto(f"{url}?token={token}&view=1")
-            _wait(lambda: "token" not in old.url, 5, "the token stripped from the URL")
+            wait_until(lambda: "token" not in old.url, 5, "the token stripped from the URL", every=0.2)
             assert old.url.endswith("?view=1") and old.input_value("#token") == token
             assert old.evaluate("sessionStorage.getItem('adaptiveh-token')") == token
             browser.close()

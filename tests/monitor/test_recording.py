@@ -28,6 +28,7 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.descriptor import FieldDescriptor
 from loopback import unique_name
 from mcap.reader import make_reader
+from polling import wait_until
 from stack_helpers import write_stack_config
 
 from bus import messages as m
@@ -233,9 +234,7 @@ def test_bytes_that_do_not_decode_are_kept_apart(tmp_path: Path, endpoint: str) 
         session.put("adaptiveh/rj/cmd/status", good)
         session.put("adaptiveh/rj/cmd/status", b"\xff\x00garbage")
         session.put("adaptiveh/rj/no/such/topic", good)
-        deadline = time.monotonic() + 5
-        while recorder.count < 3 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: recorder.count == 3, 5, "the recorder to take three messages")
     finally:
         recorder.close()
         session.close()

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from polling import wait_until
 
 from robot_io.backends.protocol import Fault, JointState
 from robot_io.config import FrankaConfig, RobotConfig
@@ -49,12 +50,12 @@ def test_streamed_targets_move_and_hold_stills_the_command_within_two_periods(ba
     speed = abs(state.dq_d[0])
     t0 = state.time.to_sec()
     backend.hold()
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline:
+
+    def stopped():
         state = backend.robot.state
-        if np.max(np.abs(state.dq_d)) < 0.01:
-            break
-        time.sleep(0.002)
+        return state if np.max(np.abs(state.dq_d)) < 0.01 else None
+
+    state = wait_until(stopped, 5, "the hold to stop the arm", every=0.002)
     still_s = state.time.to_sec() - t0
     # Two periods is the bound for the 0.2 rad/s the hold is sized for (HOLD_DYNAMICS); when franky-sim lags
     # under load the stream reaches more (0.32 rad/s seen in a full run), and a brake at a fixed
