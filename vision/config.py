@@ -6,6 +6,7 @@ message naming the key path, not mid-run. Lists from YAML become tuples.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 import numpy as np
@@ -67,9 +68,9 @@ class Pose(Section):
     @classmethod
     def _unit(cls, q: tuple[float, ...]) -> tuple[float, ...]:
         """Within 1e-3 of unit norm (rounded YAML values), then normalised exactly."""
-        norm = float(np.linalg.norm(q))
+        norm = math.hypot(*q)  # no overflow on a huge component: the error names its norm, not inf
         if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"quaternion (x, y, z, w) must have unit norm, got norm {norm:.6f}")
+            raise ValueError(f"quaternion (x, y, z, w) must have unit norm, got norm {norm:.6g}")
         return tuple(float(x) / norm for x in q)
 
 
