@@ -71,7 +71,10 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # plan's own prediction error (learner/plan_tolerance.py) instead of the default noise floor.
 # mean_limit: the shipped agent with the policy's mean bounded to the action box (a mean far past the
 # box clips every sample to the same action, which then carries no gradient: the non-take-off's
-# suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats.
+# suspected trap at a wall). again: the shipped agent once more, to see whether a run repeats. ik_box: the
+# shipped agent once more after robot-io's IK took the workspace box as a limit and its joint limits
+# 1e-3 rad inside the command check's (the arm slides along a wall and is never pinned at a joint limit;
+# docs/robot_interface.md), the other rows being from before.
 # old_agent: the stack's agent before it took reach.yaml's (kernel 0.5 on the relative coordinates, no
 # step or exploration schedules), kept for comparison. tiny_camera (issue #34): the shipped stack with
 # the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. own_kernel (issue #33): the
@@ -86,6 +89,7 @@ VARIANTS = (
     "learned_tolerance",
     "mean_limit",
     "again",
+    "ik_box",
     "tiny_camera",
     "own_kernel",
     "corrected_model",
@@ -108,7 +112,7 @@ def apply_variant(variant: str, base: dict[str, Any]) -> None:
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if variant in ("", "again", "tiny_camera"):
+    if variant in ("", "again", "ik_box", "tiny_camera"):
         return agent
     if variant == "own_kernel":
         return {**agent, "plan_kernel_scale": OWN_KERNEL, "plan_tolerance": "fixed"}

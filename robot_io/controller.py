@@ -66,15 +66,20 @@ class RobotController:
         self.backend = backend if backend is not None else make_backend(config, world)
         self.kin = Kinematics(RobotDescription(config.model))
         self.home = np.asarray(config.home_q, float)
-        self.ik = DifferentialIK(
-            config.ik, self.kin.description, config.velocity_scale, config.joint_margin_rad, self.home
-        )
         self.queue = ActionQueue()
         self.gate = CommandGate(config.max_chunk_seq_gap)
         self._refusals = EventThrottle("refused")
         self.safety = Safety(config.workspace, config.watchdog_timeout_s)
         self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
+        self.ik = DifferentialIK(
+            config.ik,
+            self.kin.description,
+            config.velocity_scale,
+            config.joint_margin_rad,
+            self.home,
+            self.box,
+        )
         self._lock = threading.Lock()
         self._pending: list[str] = []  # operator commands, applied at the next tick
         self._jog: list[np.ndarray] = []

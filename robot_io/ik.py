@@ -1,4 +1,5 @@
-"""Differential IK with mink: a QP per step with configuration limits, velocity limits and a posture task.
+"""Differential IK with mink: a QP per step with configuration, velocity and workspace limits and a posture
+task.
 
 The end-effector task tracks a position with the tool kept pointing down (a softer orientation cost), and
 a light posture task pulls towards home so the redundant joint does not drift. Because the QP respects the
@@ -16,8 +17,18 @@ import numpy as np
 
 from robot_io.config import IKConfig
 from robot_io.description import RobotDescription
+from robot_io.workspace_limit import WorkspaceLimit
 
 log = logging.getLogger(__name__)
+
+JOINT_INSET_RAD = 1e-3
+"""The IK keeps each joint this much further inside than the command check's margin: at an active limit
+the QP's answer, and an arm held there, stray some 1e-6 rad past it, and mink's limit then only ever
+takes 95 % of the way back, so every later command would be refused (docs/robot_interface.md)."""
+
+BOX_INSET_M = 5e-3
+"""Likewise for the workspace box, and the most it asks back per period when outside it: one period's step
+along a wall curves up to ~2 mm outwards of the linearised limit (docs/robot_interface.md)."""
 
 
 @dataclass(frozen=True)
@@ -38,6 +49,7 @@ class DifferentialIK:
         velocity_scale: float = 0.5,
         joint_margin: float = 0.02,
         home_q: np.ndarray | None = None,
+        box: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.config = config
         self.description = description or RobotDescription()
@@ -52,8 +64,8 @@ class DifferentialIK:
             lm_damping=config.lm_damping,
         )
         self.posture_task = mink.PostureTask(self.model, cost=config.posture_cost)
-        self.limits = [
-            mink.ConfigurationLimit(self.model, min_distance_from_limits=joint_margin),
+        self.limits: list[mink.Limit] = [
+            mink.ConfigurationLimit(self.model, min_distance_from_limits=joint_margin + JOINT_INSET_RAD),
             mink.VelocityLimit(
                 self.model,
                 {
@@ -62,6 +74,9 @@ class DifferentialIK:
                 },
             ),
         ]
+        if box is not None:
+            lo, hi = np.asarray(box[0], float) + BOX_INSET_M, np.asarray(box[1], float) - BOX_INSET_M
+            self.limits.append(WorkspaceLimit(self.model, self.description.ee_frame, lo, hi, BOX_INSET_M))
         home = np.asarray(home_q if home_q is not None else np.zeros(7), float)
         self.configuration.update(home)
         self.posture_task.set_target(home)

@@ -15,7 +15,7 @@ class CommandCheck:
     """Why a joint command is refused; ``ok`` when it is not."""
 
     ok: bool
-    kind: str = ""  # joint_limit | velocity_limit | workspace
+    kind: str = ""  # not_finite | joint_limit | velocity_limit | workspace
     detail: str = ""
 
 
@@ -81,16 +81,22 @@ class Kinematics:
         velocity_scale: float,
         box: tuple[np.ndarray, np.ndarray],
     ) -> CommandCheck:
-        """Check a command before it is sent: joint limits, joint velocity, end effector in the box."""
-        q_cmd = np.asarray(q_cmd, float)
-        low, high = self.lower + margin, self.upper - margin
+        """Check a command before it is sent: joint limits, joint velocity, end effector in the box.
+
+        A joint or the end effector already outside its bounds (a start there, a hand-guided arm) may
+        hold or come back, never go further out: refusing every command would hold it there for good."""
+        q_cmd, q_now = np.asarray(q_cmd, float), np.asarray(q_now, float)
+        if not (np.all(np.isfinite(q_cmd)) and np.all(np.isfinite(q_now))):
+            return CommandCheck(False, "not_finite", f"joint command {q_cmd.tolist()} from {q_now.tolist()}")
+        low = np.minimum(self.lower + margin, q_now)
+        high = np.maximum(self.upper - margin, q_now)
         bad = np.flatnonzero((q_cmd < low - 1e-9) | (q_cmd > high + 1e-9))
         if bad.size:
             j = int(bad[0])
             return CommandCheck(
                 False, "joint_limit", f"joint {j + 1} = {q_cmd[j]:.4f} outside [{low[j]:.4f}, {high[j]:.4f}]"
             )
-        speed = np.abs(q_cmd - np.asarray(q_now, float)) / dt
+        speed = np.abs(q_cmd - q_now) / dt
         vmax = self.velocity * velocity_scale
         bad = np.flatnonzero(speed > vmax * 1.05 + 1e-9)
         if bad.size:
@@ -98,8 +104,8 @@ class Kinematics:
             return CommandCheck(
                 False, "velocity_limit", f"joint {j + 1} at {speed[j]:.3f} rad/s > {vmax[j]:.3f}"
             )
-        p = self.ee_position(q_cmd)
-        lo, hi = box
+        p, p_now = self.ee_position(q_cmd), self.ee_position(q_now)
+        lo, hi = np.minimum(box[0], p_now), np.maximum(box[1], p_now)
         if np.any(p < lo - 1e-6) or np.any(p > hi + 1e-6):
             return CommandCheck(False, "workspace", f"end effector {np.round(p, 4).tolist()} outside the box")
         return CommandCheck(True)

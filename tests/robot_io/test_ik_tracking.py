@@ -81,3 +81,36 @@ def test_unreachable_target_gives_closest_reachable_point_without_exception(ik, 
     )
     assert errors[-1] <= best + 0.01
     assert errors[-1] > 0.5  # and it did not pretend to reach it
+
+
+def test_with_the_box_the_end_effector_stays_in_it_while_pushed_along_the_walls(kin):
+    """Goals clipped to the box as robot-io clips them, each a step biased outwards: every solution's end
+    effector is in the box the command check holds it to (the IK alone once left it by up to 2 mm)."""
+    lo, hi = np.array(CFG.workspace.lo), np.array(CFG.workspace.hi)
+    ik = DifferentialIK(
+        IKConfig(), None, CFG.velocity_scale, CFG.joint_margin_rad, np.array(CFG.home_q), (lo, hi)
+    )
+    rng = np.random.default_rng(3)
+    q, near_a_wall = np.array(CFG.home_q), 0
+    for episode in range(8):
+        push = rng.normal(size=3)
+        for _ in range(40):
+            step = push / np.linalg.norm(push) + 0.7 * rng.normal(size=3)
+            ee = kin.ee_position(q)
+            goal = np.clip(ee + 0.05 * step / max(1.0, np.linalg.norm(step)), lo, hi)
+            q = ik.solve(q, goal, CFG.period).q
+            p = kin.ee_position(q)
+            assert np.all(p >= lo - 1e-6) and np.all(p <= hi + 1e-6), (episode, p)
+            near_a_wall += bool(np.any(np.minimum(p - lo, hi - p) < 0.01))
+        q = np.array(CFG.home_q)
+    assert near_a_wall > 100  # the walls were where it spent its time
+
+
+def test_a_workspace_box_must_be_a_box():
+    from robot_io.workspace_limit import WorkspaceLimit
+
+    ik = DifferentialIK(IKConfig())
+    with pytest.raises(ValueError, match="lo < hi"):
+        WorkspaceLimit(ik.model, ik.description.ee_frame, np.zeros(3), np.array([1.0, 0.0, 1.0]), 0.005)
+    with pytest.raises(ValueError, match="no body 'nowhere'"):
+        WorkspaceLimit(ik.model, "nowhere", np.zeros(3), np.ones(3), 0.005)
