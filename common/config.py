@@ -17,10 +17,12 @@ from typing import Annotated, Any, TypeVar
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
+from common.errors import AdaptiveHError
+
 S = TypeVar("S", bound=BaseModel)
 
 
-class ConfigError(ValueError):
+class ConfigError(AdaptiveHError, ValueError):
     """A config file or section that cannot be used; the message names the key path."""
 
 

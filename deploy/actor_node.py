@@ -56,6 +56,7 @@ class ActorNode(Node):
         self.env = ZenohReachEnv(self.bus, dataclasses.replace(env_settings(settings), latency_ms=0.0))
         self.actor = Actor(self.env, AdaptiveHConfig(**lc.agent_config(settings.robot.period)), lc.seed)
         self.out = Path(lc.checkpoint_dir) / "actor.json"
+        self.handoff = lc.policy_from  # then the first plan waits for the learner's first snapshot
         self.error = ""  # why acting ended, when it did not end by a stop
         self._lock = threading.Lock()
         self._offered: PolicySnapshot | None = None  # the newest accepted snapshot, taken at the next segment
@@ -81,7 +82,9 @@ class ActorNode(Node):
             snap.check(self.actor.state_dim, self.actor.action_dim, self.actor.max_centers)
             with self._lock:
                 newest = max(self.actor.version, self._offered.version if self._offered else -1)
-                if snap.version <= newest:
+                if snap.version == newest:
+                    return  # the learner publishes its policy again while no tick reaches it
+                if snap.version < newest:
                     raise SnapshotError(f"version {snap.version} is not newer than {newest}")
                 self._offered = snap
         except SnapshotError as exc:
@@ -122,6 +125,7 @@ class ActorNode(Node):
 
     def _act(self) -> None:
         try:
+            self._await_handoff()
             while not self.stopping:
                 self._episode()
         except EnvStopped:
@@ -132,6 +136,24 @@ class ActorNode(Node):
             self.request_stop()
         finally:
             self._write_counts()
+
+    def _await_handoff(self) -> None:
+        """With ``learner.policy_from`` the arm plays the handed-off policy from its first plan: nothing
+        moves (no reset, no plan) until the learner's first snapshot is here."""
+        if self.handoff is None:
+            return
+        start = told = time.monotonic()
+        while not self.stopping:
+            with self._lock:
+                if self._offered is not None or self.actor.version >= 0:
+                    return
+            now = time.monotonic()
+            if now - told >= 5.0:
+                log.warning(
+                    "no plan yet: waited %.0f s for the handed-off policy of %s", now - start, self.handoff
+                )
+                told = now
+            time.sleep(0.05)
 
     def _episode(self) -> None:
         obs, info = self.env.reset(seed=self._episode_seed)

@@ -65,6 +65,11 @@ class LearnerConfig(Section):
     target_timeout_s: float = Field(0.5, gt=0)
     checkpoint_dir: str = "runs/stack/learner"
     checkpoint_every: int = Field(500, ge=1)
+    # A handoff: start from the policy (critic, gradient field, plan tolerance) of another run's
+    # checkpoint, a file or its run folder (``adaptiveh train`` or another stack's checkpoint_dir), then
+    # keep learning. Checked against this task when the stack starts (learner.provenance); a run that
+    # already has its own checkpoint resumes that instead. Relative to the working directory.
+    policy_from: str | None = None
     # closed_loop: one action per step, sent as a chunk (above). plan: a segment is a committed plan that
     # the robot plays while the learner learns from every executed tick (learner/plans.py,
     # deploy/zenoh_env.py); a retreat preempts the rest. closed_loop stays the default until plan mode
@@ -100,6 +105,10 @@ class LearnerConfig(Section):
             raise ValueError(f"execution plan: algo {self.algo} has no plan mode")
         if self.execution == "actor" and self.algo not in ACTOR_ALGOS:
             raise ValueError(f"execution actor: algo {self.algo} has no actor; use one of {ACTOR_ALGOS}")
+        if self.policy_from is not None and self.algo not in ACTOR_ALGOS:
+            raise ValueError(
+                f"policy_from: algo {self.algo} cannot start from a handoff; use one of {ACTOR_ALGOS}"
+            )
         return self
 
     @property
@@ -172,10 +181,10 @@ class StackConfig(Section):
 
     @model_validator(mode="after")
     def _sim_camera_needs_sim_arm(self) -> StackConfig:
-        if self.vision is not None and self.vision.camera == "sim" and self.robot.backend != "pybullet":
+        if self.vision is not None and self.vision.camera == "sim" and not self.robot.simulated:
             raise ValueError(
-                "vision camera sim renders the simulated world, which only the pybullet backend publishes"
-                f" (robot backend is {self.robot.backend}): use realsense"
+                "vision camera sim renders a replica of the simulated world (the pybullet mock, or franky-sim"
+                " with robot.franka.simulated_target), and this robot has none: use realsense"
             )
         return self
 

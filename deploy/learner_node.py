@@ -36,6 +36,7 @@ from deploy.plan_channel import DelayedSender, PlanDrop
 from deploy.policy_wire import snapshot_message
 from deploy.zenoh_env import EnvSettings, EnvStopped, ReachSpec, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
+from learner.provenance import checkpoint_path
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
@@ -62,7 +63,26 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         target_timeout_s=lc.target_timeout_s,
         execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
         latency_ms=lc.latency_ms,
+        robot_model=cfg.robot.model,
     )
+
+
+def check_policy_source(settings: StackConfig) -> dict[str, Any] | None:
+    """What ``learner.policy_from`` hands the learner (``AdaptiveH.start_from``'s record), checked as the
+    learner will check it, so ``adaptiveh up`` refuses a wrong checkpoint before any part starts; None
+    without a handoff or when the learner resumes its own checkpoint instead. Raises ``HandoffMismatch``
+    naming the field, or ``FileNotFoundError``."""
+    lc = settings.learner
+    if lc.policy_from is None or (Path(lc.checkpoint_dir) / "checkpoint.pkl").exists():
+        return None
+    if not checkpoint_path(lc.policy_from).is_file():
+        raise FileNotFoundError(f"learner.policy_from: no checkpoint at {lc.policy_from}")
+    spec = ReachSpec(env_settings(settings))
+    agent = make_agent(lc.algo, spec, lc.seed, lc.agent_config(settings.robot.period))
+    return agent.start_from(lc.policy_from)
+
+
+REPUBLISH_S = 1.0  # how often the held policy is published again while no tick comes
 
 
 class TransitionFeed:
@@ -138,6 +158,12 @@ class LearnerNode(Node):
             self.agent.load(self.ckpt)
             self.resumed_from = self.agent.log.global_step
             log.info("resumed from %s at step %d", self.ckpt, self.resumed_from)
+        elif self.cfg.policy_from is not None:
+            came = self.agent.start_from(self.cfg.policy_from)
+            log.info(
+                "handoff: started from %s (%s, %d steps)", came["path"], came["trained_on"], came["steps"]
+            )
+        self.handed_off = getattr(self.agent, "started_from", None) is not None
         self._pub_retreat = self.bus.publisher(m.EVENTS_RETREAT)
         self._pub_tel = self.bus.publisher(m.TELEMETRY_LEARNER)
         self._paused = threading.Event()
@@ -231,17 +257,28 @@ class LearnerNode(Node):
 
     def _learn_stream(self, progress: Any) -> None:
         """Learn from the actor's ticks; at each segment's end checkpoint (so a killed learner loses at
-        most the segment it was in) and publish the new policy."""
+        most the segment it was in) and publish the new policy. While no tick comes (an actor starting,
+        or waiting for a handed-off policy before it plays anything), the policy held is published again
+        every second: a subscriber has no history, so an actor that joins later would never get it."""
+        quiet_since = time.monotonic()
         while self.agent.log.global_step < self.cfg.steps and self._gate():
             t = self.feed.get(timeout=0.25)
             if t is None:
+                if self._holds_policy() and time.monotonic() - quiet_since >= REPUBLISH_S:
+                    self._publish_snapshot()
+                    quiet_since = time.monotonic()
                 continue
+            quiet_since = time.monotonic()
             if learn_transition(self.agent, t) is not None:
                 self.save()
                 self._publish_snapshot()
             self._after_step()
             if progress is not None:
                 progress(self)
+
+    def _holds_policy(self) -> bool:
+        """A policy worth publishing unasked: handed off, or learned (this run or before a restart)."""
+        return self.handed_off or self.agent.log.global_step > 0
 
     def _publish_snapshot(self) -> None:
         msg = snapshot_message(self.agent.snapshot())
@@ -301,6 +338,7 @@ class LearnerNode(Node):
             "config": self.cfg.model_dump(),
             "summary": summarize(full),
             "resumed_from": self.resumed_from,
+            "started_from": getattr(self.agent, "started_from", None),
             "steps_this_session": steps,
             "wall_clock_s": wall,
             "execution": self.cfg.execution,

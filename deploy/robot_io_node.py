@@ -56,6 +56,7 @@ def robot_state_message(s: ArmState, instance: str, stamp: float = 0.0) -> m.Rob
         dq=s.dq.tolist(),
         ee_pos=s.ee_pos.tolist(),
         ee_vel=s.ee_vel.tolist(),
+        ee_cmd=(s.ee_pos if s.ee_cmd is None else s.ee_cmd).tolist(),
         mode=m.enum(m.RobotState, "mode", s.mode),
         chunk_seq=s.chunk_seq,
         queue_len=s.queue_len,

@@ -21,6 +21,7 @@ def summary_table(s: dict[str, Any]) -> str:
     reasons = s.get("reasons") or {}
     safety = s.get("safety_events") or {}
     rows = [
+        ("policy started from", started_from(s.get("started_from"))),
         (
             "steps, episodes",
             f"{s.get('global_step', 0)}, {s.get('episodes', 0)} in {s['wall_clock_s']:.0f} s",
@@ -51,6 +52,15 @@ def summary_table(s: dict[str, Any]) -> str:
     ]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}} | {v}" for k, v in rows)
+
+
+def started_from(handoff: dict[str, Any] | None) -> str:
+    """Which policy the run began with: an empty one, or a handoff's source."""
+    if not handoff:
+        return "an empty policy (no handoff)"
+    arm = f" on {handoff['arm']}" if handoff.get("arm") else ""
+    commit = f", commit {handoff['commit']}" if handoff.get("commit") else ""
+    return f"{handoff['path']} ({handoff['trained_on']}{arm}, {handoff['steps']} steps{commit})"
 
 
 def learning_curve(result: dict[str, Any], path: Path, window: int = 10) -> Path | None:

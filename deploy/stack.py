@@ -30,6 +30,7 @@ from bus import messages as m
 from bus.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
 from bus.signing import mac_key
 from bus.transport import Bus, open_session
+from common.errors import AdaptiveHError
 from common.heap import ALLOCATOR_ENV
 from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
@@ -143,10 +144,12 @@ class Stack:
         token: str | None = None,
         steps: int | None = None,
         progress: bool = True,
+        policy_from: str | None = None,
         python: str = sys.executable,
     ) -> None:
         self.config = str(config)
-        self.cfg = load_stack_config(config)
+        self.cfg = load_stack_config(config, learner={"policy_from": policy_from})
+        self.policy_from = policy_from
         self.name = self.cfg.name
         self.token = token or secrets.token_urlsafe(12)
         self.steps = steps
@@ -170,6 +173,7 @@ class Stack:
         self.recording_lost: int | None = None  # messages the recorder missed and could not get back
         self.limits = self.cfg.view_limits()
         self.bus: Bus | None = None  # the supervisor's own, while it runs
+        self.handoff: dict[str, Any] | None = None  # what learner.policy_from hands over (checked at start)
 
     def part_commands(self) -> dict[str, list[str]]:
         """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
@@ -188,6 +192,10 @@ class Stack:
             del cmds["actor"]
         if self.steps is not None:
             cmds["learner"] += ["--steps", str(self.steps)]
+        if self.policy_from is not None:
+            for part in ("learner", "actor"):
+                if part in cmds:
+                    cmds[part] += ["--policy-from", self.policy_from]
         base = [self.python, "-m", "deploy.cli"]
         tail = ["--config", self.config, "--log-level", "WARNING"]
         return {part: [*base, *args, *tail] for part, args in cmds.items()}
@@ -265,6 +273,12 @@ class Stack:
             time.sleep(0.2)
 
     def run(self) -> dict[str, Any]:
+        from deploy.learner_node import check_policy_source  # the learner's own check, loaded when run
+
+        try:
+            self.handoff = check_policy_source(self.cfg)
+        except (AdaptiveHError, FileNotFoundError, ValueError) as exc:
+            raise RuntimeError(str(exc)) from None
         zc = self.cfg.zenoh
         if not (zc.connect or zc.listen) and zc.mode == "peer":
             # The supervisor owns the loopback hub; the parts join through it and gossip makes a full mesh
@@ -396,6 +410,7 @@ class Stack:
             "retreat_preemptions": actor.get("retreat_preemptions", result.get("retreat_preemptions")),
             "retreat_dropped": actor.get("retreat_dropped", result.get("retreat_dropped")),
             "actor": actor or None,
+            "started_from": result.get("started_from") or self.handoff,
             "safety_events": dict(self.safety_kinds),
             # Unsigned, replayed, undecodable or out-of-range messages the supervisor did not count
             "rejected_messages": dict(self.bus.bad_messages) if self.bus is not None else {},

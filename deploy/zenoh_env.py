@@ -50,6 +50,7 @@ from tasks.reach import (
     reach_observation_bounds,
     reach_reward,
     reach_success,
+    reach_task_record,
 )
 
 log = logging.getLogger(__name__)
@@ -94,6 +95,7 @@ class EnvSettings:
     latency_ms: float  # the learner's thinking time made real: a chunk goes out this late
     reset_timeout_s: float = 30.0
     target_timeout_s: float = 0.5
+    robot_model: str = "panda"  # robot.model: the arm a checkpoint records (learner.provenance)
 
 
 def _seen_at(target: m.Target | None) -> float:
@@ -142,6 +144,10 @@ class ReachSpec(gym.Env):
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
         self.period = 1.0 / settings.control_rate_hz
         self.workspace = (np.asarray(lo, float), np.asarray(hi, float))  # robot-io's box for the goal
+
+    def task_record(self) -> tuple:
+        """What a checkpoint of a policy learned here records (``learner.provenance``)."""
+        return reach_task_record(self.settings.robot_model, "the stack (adaptiveh up)")
 
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
@@ -319,15 +325,22 @@ class ZenohReachEnv(ReachSpec):
     def _observe(
         self, state: m.RobotState | None = None, target: m.Target | None = None
     ) -> tuple[np.ndarray, float, dict[str, Any]]:
-        """Observation, distance and info of ``state`` and ``target`` (default: the newest of each)."""
+        """Observation, reward and info of ``state`` and ``target`` (default: the newest of each).
+
+        The policy sees, and is rewarded by, the commanded TCP: what its action moves at once. A streamed
+        arm reaches it a few periods later (franky-sim: 3-4), and a reward on the measured hand scored
+        each action by the ones before it: learning drove the arm away from the target (docs/stack.md).
+        Distance and success are the measured hand's. On the mock the two are one (``ee_cmd = ee_pos``)."""
         with self._cond:
             state = self._state if state is None else state
             target = self._target if target is None else target
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
         position, age = target_at(target, state.stamp, self.settings.target_timeout_s)
-        obs = reach_observation(ee, state.ee_vel, position, target.velocity)
+        commanded = np.asarray(state.ee_cmd)
+        obs = reach_observation(commanded, state.ee_vel, position, target.velocity)
         distance = reach_distance(ee, position)
+        reward = reach_reward(reach_distance(commanded, position))
         info = {
             "distance": distance,
             "success": reach_success(distance),
@@ -337,7 +350,7 @@ class ZenohReachEnv(ReachSpec):
             "dropped_total": self.dropped_total,
             "tick": state.tick,  # the robot's control tick the observation is from
         }
-        return obs, distance, info
+        return obs, reward, info
 
     # -- gymnasium -----------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -451,9 +464,9 @@ class ZenohReachEnv(ReachSpec):
         self._opening = "continue"  # played: the segment's later chunks continue it
         self._steps += 1
         self.global_step += 1
-        obs, distance, info = self._observe()
+        obs, reward, info = self._observe()
         truncated = self._steps >= self.settings.max_episode_steps or restarted
-        return obs, reach_reward(distance), False, truncated, info
+        return obs, reward, False, truncated, info
 
     def _await_played(self, plan_id: int, seq: int, signed: bool) -> str:
         """How the step's chunk ``seq`` fared within the step timeout: "played" when a tick played its
@@ -575,7 +588,7 @@ class ZenohReachEnv(ReachSpec):
         plan_id, index, action = played(state, self.book, self.session.id)
         self._steps += 1
         self.global_step += 1
-        obs, distance, info = self._observe(state, target)
+        obs, reward, info = self._observe(state, target)
         info.update(tick=state.tick, played_chunk=state.played_chunk, mode=m.label(state, "mode"))
         truncated = self._steps >= self.settings.max_episode_steps or restarted
-        return Executed(plan_id, index, action, obs, reach_reward(distance), False, truncated, info)
+        return Executed(plan_id, index, action, obs, reward, False, truncated, info)

@@ -43,6 +43,7 @@ from learner.plan_tolerance import (
 from learner.plans import Plan, PlanChannel, QueuedChannel, opening, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
+from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, default_threshold
 from learner.snapshot import PolicySnapshot
@@ -146,6 +147,13 @@ class AdaptiveH:
         self.alpha = cfg.alpha  # the step per sample now (alpha_final: scheduled)
         self.rng = np.random.default_rng(seed)
         self.log = RunLog()
+        self.trained_on = trained_on(
+            env, (self.normalize.centre - self.normalize.scale, self.normalize.centre + self.normalize.scale)
+        )
+        # A handoff (``start_from``): the source's path, record and steps; its steps also carry the
+        # exploration and step-size schedules on from where the source left them.
+        self.started_from: dict | None = None
+        self.schedule_offset = 0
         self.nonfinite_skipped = 0
         # advantage_lambda > 0: samples whose λ-advantage is still accruing [s, score, advantage, weight],
         # and the matured (state, gradient) pairs that the next segment update applies.
@@ -496,7 +504,7 @@ class AdaptiveH:
         """This step's exploration std and step size on their schedules (``sigma_final``, ``alpha_final``):
         a policy still moving at full step and full noise late in a run swings between good and bad."""
         cfg = self.config
-        frac = min(self.log.global_step / cfg.schedule_steps, 1.0)
+        frac = min((self.schedule_offset + self.log.global_step) / cfg.schedule_steps, 1.0)
         if cfg.alpha_final is not None:
             self.alpha = cfg.alpha + (cfg.alpha_final - cfg.alpha) * frac
         if cfg.sigma_final is not None:
@@ -579,6 +587,9 @@ class AdaptiveH:
             "replay": None if self.replay is None else self.replay.state_dict(),
             "replay_rng": self._replay_rng.bit_generator.state,
             "env": env_state,
+            "trained_on": self.trained_on.to_dict(),
+            "started_from": self.started_from,
+            "schedule_offset": self.schedule_offset,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -592,6 +603,8 @@ class AdaptiveH:
         self._obs = state["obs"]
         self._ep_return, self._ep_len, self._episode_seed = state["ep"]
         self.nonfinite_skipped = state["nonfinite_skipped"]
+        self.started_from = state.get("started_from")
+        self.schedule_offset = state.get("schedule_offset", 0)
         self._pending = deque([list(e) for e in state.get("pending", [])])
         self._matured = list(state.get("matured", []))
         if self.replay is not None and state.get("replay") is not None:
@@ -615,6 +628,37 @@ class AdaptiveH:
     def load(self, path: str | Path) -> None:
         with open(path, "rb") as fh:
             self.load_state_dict(pickle.load(fh))
+
+    def start_from(self, path: str | Path) -> dict:
+        """Hand off: take the policy, critic, gradient field and plan tolerance another run trained (its
+        checkpoint at ``path``, a file or run folder), after checking it was trained on this task
+        (``learner.provenance.HandoffMismatch`` names the field that differs); this run's own log, clock
+        and randomness start fresh. The normaliser is part of the checked record, so it is the source's.
+        Returns ``started_from``: what the summary and the monitor report."""
+        ckpt = checkpoint_path(path)
+        with open(ckpt, "rb") as fh:
+            state = pickle.load(fh)
+        if state.get("name") not in ("adaptiveh", "rkhs"):
+            raise ValueError(f"{ckpt}: not an RKHS learner's checkpoint (name {state.get('name')!r})")
+        if "trained_on" not in state:
+            raise ValueError(f"{ckpt}: the checkpoint records no trained_on (made before handoffs existed)")
+        recorded = TrainedOn.from_dict(state["trained_on"])
+        check_handoff(recorded, self.trained_on, str(ckpt))
+        self.policy.f.load_state_dict(state["policy"])
+        self.critic.load_state_dict(state["critic"])
+        self.retreat.start_from(state["retreat"])
+        steps = int(state["log"]["global_step"]) + int(state.get("schedule_offset", 0))
+        self.schedule_offset = steps
+        self.started_from = {
+            "path": str(ckpt),
+            "algo": state["name"],
+            "steps": steps,
+            "trained_on": recorded.source,
+            "arm": recorded.arm.model if recorded.arm else "",
+            "commit": recorded.commit,
+        }
+        self._schedule()
+        return self.started_from
 
 
 class RKHSFixedH(AdaptiveH):

@@ -208,10 +208,14 @@ class RetreatCheck:
             "plan_tolerance": getattr(self.plan_tolerance, "state_dict", dict)(),
         }
 
-    def load_state_dict(self, state: dict) -> None:
+    def start_from(self, state: dict) -> None:
+        """A handoff: another run's gradient field and plan tolerance; no segment of it is open here."""
         self.field.load_state_dict(state["field"])
-        self._snapshot = state["snapshot"]
         if state.get("plan_tolerance") and hasattr(self.plan_tolerance, "load_state_dict"):
             self.plan_tolerance.load_state_dict(state["plan_tolerance"])
+
+    def load_state_dict(self, state: dict) -> None:
+        self.start_from(state)
+        self._snapshot = state["snapshot"]
         self.states, self.grads = list(state["states"]), list(state["grads"])
         self.trace = list(state["trace"])

@@ -95,6 +95,11 @@ class RobotConfig(Section):
     physics_substeps: int = Field(12, ge=1)  # pybullet: physics steps per control period
     # Largest end-effector displacement accepted per control period (the task's 5 cm per step bound).
     max_step_m: float = Field(0.05, gt=0, le=0.05)
+    # How far the commanded TCP may lead the measured one. A streamed position-controlled arm (franky)
+    # lags its command by a few periods; the command goes on from where it was commanded, held within this
+    # of the hand, so it never runs away from a slow or blocked arm. On franky-sim 0.05 capped the hand at
+    # ~15 mm a period, 0.1 let it reach ~25 (docs/robot_interface.md); the mock tracks within ~1 cm.
+    command_lead_m: float = Field(0.1, gt=0, le=0.3)
     # Longest chunk (plan) accepted: 25 s at 20 Hz, far beyond any learner's horizon (h_max 50); a longer
     # one is a learner bug and is refused whole, which also bounds the queue.
     max_plan_actions: int = Field(500, ge=1)

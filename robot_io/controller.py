@@ -49,6 +49,7 @@ class ArmState:
     session: str = ""  # the learner session the arm obeys; chunk numbers above are that session's
     chunk_stamp: float = 0.0  # the send times of chunk_seq and played_chunk (with the numbers: exact)
     played_stamp: float = 0.0
+    ee_cmd: np.ndarray | None = None  # the commanded TCP (``RobotState.ee_cmd``); None: ee_pos
 
 
 @dataclass
@@ -230,7 +231,9 @@ class RobotController:
     def state(self) -> ArmState:
         js = self.backend.read_state()
         ee_pos, ee_vel = self.kin.ee_position_velocity(js.q, js.dq)
+        ee_cmd = ee_pos if js.q_cmd is None else self.kin.ee_position(js.q_cmd)
         return ArmState(
+            ee_cmd=ee_cmd,
             q=js.q,
             dq=js.dq,
             ee_pos=ee_pos,
@@ -340,17 +343,32 @@ class RobotController:
         self.backend.step()
         return TickResult(self.state(), applied, self.safety.drain(), [])
 
-    def _anchor(self, q: np.ndarray, q_cmd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Where this period's action starts, and its end-effector position: the commanded configuration
-        while the arm tracks it within one step (the action moves the commanded end effector, as on any
-        position-controlled arm), else the measured one, so a blocked arm never lets the command run
-        away from it."""
+    def _anchor(self, q: np.ndarray, q_cmd: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where this period's action starts (configuration and end effector), and the measured end
+        effector. The commanded configuration while it leads the measured arm by at most a lead and a
+        step (the action moves the commanded end effector, as on any position-controlled arm, so a
+        lagging arm's command keeps going the way it went); else the measured one (the arm was pushed
+        off its command)."""
         ee = self.kin.ee_position(q)
         if q_cmd is None:
-            return q, ee
+            return q, ee, ee
         ee_cmd = self.kin.ee_position(q_cmd)
-        gap = float(np.linalg.norm(ee_cmd - ee))
-        return (q_cmd, ee_cmd) if gap <= self.config.max_step_m else (q, ee)
+        if float(np.linalg.norm(ee_cmd - ee)) <= self.config.command_lead_m + self.config.max_step_m:
+            return q_cmd, ee_cmd, ee
+        return q, ee, ee
+
+    def _goal(self, ee0: np.ndarray, ee_measured: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """``ee0 + action``, held within ``command_lead_m`` of the measured end effector (a slow arm's
+        command never runs away from it, and a blocked arm stops it), clipped into
+        the workspace box. Leading by a bounded amount, instead of re-anchoring on the measured arm when the
+        command got ahead, keeps the command monotone: re-anchoring made it jump back and forth a step
+        each period on franky-sim, and the arm hardly moved (docs/robot_interface.md)."""
+        goal = ee0 + action
+        lead = goal - ee_measured
+        norm = float(np.linalg.norm(lead))
+        if norm > self.config.command_lead_m:
+            goal = ee_measured + lead * (self.config.command_lead_m / norm)
+        return self.safety.clip_goal(goal)
 
     def _execute(self, action: np.ndarray) -> np.ndarray:
         """Displace the end-effector goal by ``action`` (≤ max_step_m), clip, solve IK, check, send."""
@@ -359,8 +377,8 @@ class RobotController:
         if norm > self.config.max_step_m:
             action = action * (self.config.max_step_m / norm)
         js = self.backend.read_state()
-        q0, ee0 = self._anchor(js.q, js.q_cmd)
-        goal = self.safety.clip_goal(ee0 + action)
+        q0, ee0, ee_measured = self._anchor(js.q, js.q_cmd)
+        goal = self._goal(ee0, ee_measured, action)
         start_error = float(np.linalg.norm(ee0 - goal))
         result = self.ik.solve(q0, goal, self.config.period)
         # Out of reach: the QP ends far from the goal and cannot get any closer (limits are active).

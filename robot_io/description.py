@@ -44,6 +44,10 @@ class RobotModel:
     flange_link: str  # the arm's flange, where libfranka's own kinematics end (checked at connect)
     home_q: tuple[float, ...]  # the pose reset and startup go to
     finger_opening: float  # the fingers are held (PyBullet) and locked (Pinocchio) at this opening
+    # A Cartesian policy acts on the TCP in the base frame: arms of one kinematic family whose TCPs sit
+    # as far beyond the flange (within millimetres) serve the same policy (learner.provenance).
+    family: str
+    tcp_offset_m: float  # the TCP beyond the flange (tests hold it equal to the URDF's)
 
 
 MODELS: dict[str, RobotModel] = {
@@ -57,6 +61,8 @@ MODELS: dict[str, RobotModel] = {
         # A comfortable pose above the table, the usual Panda "ready" configuration.
         home_q=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
         finger_opening=0.04,
+        family="franka",
+        tcp_offset_m=0.105,
     ),
     "fr3": RobotModel(
         name="fr3",
@@ -68,6 +74,8 @@ MODELS: dict[str, RobotModel] = {
         # The same "ready" pose: inside the FR3's tighter joint 4 and 6 ranges too.
         home_q=(0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4),
         finger_opening=0.04,
+        family="franka",
+        tcp_offset_m=0.1034,
     ),
 }
 

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from learner.provenance import ArmRecord
+from robot_io.description import robot_model
+
 SUCCESS_M = 0.05
 MAX_STEP_M = 0.05
 RELATIVE_RANGE_M = 0.6  # typical |target - ee| per axis, for normalisation (not a hard bound)
@@ -30,6 +33,19 @@ def reach_observation(
     """The 15-value observation of the module docstring."""
     ee_pos, target_pos = np.asarray(ee_pos, float), np.asarray(target_pos, float)
     return np.concatenate([ee_pos, ee_vel, target_pos, target_vel, target_pos - ee_pos]).astype(np.float32)
+
+
+OBSERVATION_NAMES = tuple(
+    f"{part}_{axis}" for part in ("ee", "ee_vel", "target", "target_vel", "target_rel") for axis in "xyz"
+)
+TASK = "reach"
+
+
+def reach_task_record(model: str, source: str) -> tuple[str, tuple[str, ...], ArmRecord, str]:
+    """(task, observation names, the arm, how it is run): what a reach policy's checkpoint records
+    (``learner.provenance``) for the arm ``model``."""
+    arm = robot_model(model)
+    return TASK, OBSERVATION_NAMES, ArmRecord(arm.name, arm.family, arm.tcp_offset_m), source
 
 
 def reach_observation_bounds(

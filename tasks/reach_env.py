@@ -25,6 +25,7 @@ from tasks.reach import (
     reach_observation_bounds,
     reach_reward,
     reach_success,
+    reach_task_record,
 )
 from tasks.sim_world import arm_scene
 
@@ -99,6 +100,10 @@ class NSReachEnv(gym.Env):
         terminated = bool(self.terminate_on_success and info["success"])
         truncated = self._steps >= self.max_episode_steps
         return obs, reach_reward(distance), terminated, truncated, info
+
+    def task_record(self) -> tuple:
+        """What a checkpoint of a policy learned here records (``learner.provenance``)."""
+        return reach_task_record(self.config.model, "NSReach-v0 (in-process, PyBullet mock)")
 
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The plan model (``tasks.reach.predict_reach``): what a plan made now assumes."""

@@ -13,7 +13,7 @@ LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
 length_multiple: _descriptor.FieldDescriptor
 
 class RobotState(_message.Message):
-    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index", "session", "chunk_stamp", "played_stamp", "mac", "instance")
+    __slots__ = ("seq", "stamp", "q", "dq", "ee_pos", "ee_vel", "mode", "chunk_seq", "queue_len", "tick", "played_chunk", "played_index", "session", "chunk_stamp", "played_stamp", "mac", "instance", "ee_cmd")
     class Mode(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         MODE_UNSPECIFIED: _ClassVar[RobotState.Mode]
@@ -45,6 +45,7 @@ class RobotState(_message.Message):
     PLAYED_STAMP_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
     INSTANCE_FIELD_NUMBER: _ClassVar[int]
+    EE_CMD_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     q: _containers.RepeatedScalarFieldContainer[float]
@@ -62,7 +63,8 @@ class RobotState(_message.Message):
     played_stamp: float
     mac: bytes
     instance: str
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ..., instance: _Optional[str] = ...) -> None: ...
+    ee_cmd: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., q: _Optional[_Iterable[float]] = ..., dq: _Optional[_Iterable[float]] = ..., ee_pos: _Optional[_Iterable[float]] = ..., ee_vel: _Optional[_Iterable[float]] = ..., mode: _Optional[_Union[RobotState.Mode, str]] = ..., chunk_seq: _Optional[int] = ..., queue_len: _Optional[int] = ..., tick: _Optional[int] = ..., played_chunk: _Optional[int] = ..., played_index: _Optional[int] = ..., session: _Optional[str] = ..., chunk_stamp: _Optional[float] = ..., played_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ..., instance: _Optional[str] = ..., ee_cmd: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class Target(_message.Message):
     __slots__ = ("seq", "stamp", "position", "velocity", "covariance", "valid", "frame_stamp", "status", "mac")

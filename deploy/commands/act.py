@@ -14,6 +14,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_part_arguments(p, "name, zenoh, robot, learner")
     add_token_argument(p)
+    p.add_argument(
+        "--policy-from",
+        default=None,
+        metavar="PATH",
+        help="override learner.policy_from (the actor then "
+        "plans nothing before the learner's first snapshot)",
+    )
     p.set_defaults(func=run)
 
 
@@ -23,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.config import load_stack_config
 
     setup_logging(args.log_level)
-    cfg = load_stack_config(args.config)
+    cfg = load_stack_config(args.config, learner={"policy_from": args.policy_from})
     if cfg.learner.execution != "actor":
         logging.error(
             "learner.execution is %r: the learner drives the arm itself, no actor runs", cfg.learner.execution

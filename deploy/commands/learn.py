@@ -23,6 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps", type=int, default=None, help="override learner.steps (total, including resumed)"
     )
     p.add_argument("--checkpoint-dir", default=None, help="override learner.checkpoint_dir")
+    p.add_argument("--policy-from", default=None, metavar="PATH", help="override learner.policy_from")
     add_token_argument(p)
     p.add_argument("--log-level", default="INFO")
     p.set_defaults(func=run)
@@ -37,7 +38,12 @@ def run(args: argparse.Namespace) -> int:
     from deploy.learner_node import LearnerNode
 
     setup_logging(args.log_level)
-    overrides = {"algo": args.algo, "steps": args.steps, "checkpoint_dir": args.checkpoint_dir}
+    overrides = {
+        "algo": args.algo,
+        "steps": args.steps,
+        "checkpoint_dir": args.checkpoint_dir,
+        "policy_from": args.policy_from,
+    }
     cfg = load_stack_config(args.config, learner=overrides)
     node = LearnerNode(cfg, control_token=operator_token(args))
     # Its last checkpoint and result are written on the way out: more time than a part's 10 s.

@@ -32,6 +32,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--probe-arm", action="store_true", help="with --check: connect to the Franka and read its version"
     )
     p.add_argument("--steps", type=int, default=None, help="override learner.steps")
+    p.add_argument(
+        "--policy-from",
+        default=None,
+        metavar="PATH",
+        help="start the learner from this checkpoint (a file or run folder): learner.policy_from",
+    )
     add_token_argument(p)  # default: a random token, printed (TOKEN_NOTE)
     p.add_argument("--summary", default="", help="also write the summary JSON here")
     p.add_argument("--log-level", default="INFO")
@@ -50,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
             print(line)
         return 0 if ok else 1
     given = operator_token(args)
-    stack = Stack(args.config, token=given or None, steps=args.steps)
+    stack = Stack(args.config, token=given or None, steps=args.steps, policy_from=args.policy_from)
     tell_token(stack.token, (args.token_file or f"${TOKEN_ENV}") if given else "")
     on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:

@@ -14,6 +14,7 @@ SAMPLES = [
         dq=[0.0] * 7,
         ee_pos=[0.3, 0.0, 0.5],
         ee_vel=[0.0, 0.01, 0.0],
+        ee_cmd=[0.3, 0.0, 0.5],
         mode=m.RobotState.HELD,
         chunk_seq=4,
         queue_len=2,
@@ -51,7 +52,12 @@ SAMPLES = [
     m.ResetReply(
         ok=True,
         state=m.RobotState(
-            q=[0.0] * 7, dq=[0.0] * 7, ee_pos=[0.3, 0, 0.5], ee_vel=[0, 0, 0], mode=m.RobotState.RUNNING
+            q=[0.0] * 7,
+            dq=[0.0] * 7,
+            ee_pos=[0.3, 0, 0.5],
+            ee_vel=[0, 0, 0],
+            ee_cmd=[0.3, 0, 0.5],
+            mode=m.RobotState.RUNNING,
         ),
     ),
     m.Rejected(key="adaptiveh/panda/cmd/chunk", error="bad", data=b"\x00\x01"),

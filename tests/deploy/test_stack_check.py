@@ -58,10 +58,10 @@ def test_sim_check_passes_and_bad_config_is_named(tmp_path):
 
 
 def test_sim_camera_on_a_real_arm_is_refused(tmp_path):
-    """The sim camera renders the world the pybullet mock publishes; on a Franka it would see nothing."""
+    """The sim camera renders the simulated world robot-io publishes; on a real Franka there is none."""
     cfg = compose_stack_yaml("configs/franka_realsense.yaml")
     cfg["vision"]["camera"] = "sim"
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(cfg))
     out = _check(str(bad))
-    assert out.returncode == 1 and "only the pybullet backend publishes" in out.stdout
+    assert out.returncode == 1 and "this robot has none: use realsense" in out.stdout

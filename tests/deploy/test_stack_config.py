@@ -110,7 +110,9 @@ def _stack_configs() -> list[Path]:
 
 def test_every_shipped_stack_config_loads(tmp_path, monkeypatch):
     paths = _stack_configs()
-    assert {"sim.yaml", "franka_realsense.yaml", "multi_machine_tls.yaml"} <= {p.name for p in paths}
+    assert {"sim.yaml", "franka_sim.yaml", "franka_realsense.yaml", "multi_machine_tls.yaml"} <= {
+        p.name for p in paths
+    }
     # multi_machine_tls.yaml names its certificates (certs/test, gitignored): load it where they exist
     script = CONFIGS.parent / "scripts" / "make_test_certs.sh"
     subprocess.run([str(script), str(tmp_path / "certs" / "test")], check=True, capture_output=True)
@@ -120,8 +122,8 @@ def test_every_shipped_stack_config_loads(tmp_path, monkeypatch):
                 patch.chdir(tmp_path)
             cfg = load_stack_config(path)
         assert cfg.monitor is not None, path
-        # franka_sim.yaml: no camera sees franky-sim's world; the learner reads the scripted target
-        assert cfg.vision is not None or cfg.learner.target_topic == "sim/target_truth", path
+        # every shipped stack, the rehearsal on franky-sim included, sees its target through vision
+        assert cfg.vision is not None and cfg.learner.target_topic == "target", path
 
 
 def test_every_algo_has_its_agent_section():

@@ -256,7 +256,11 @@ def test_sim_camera_renders_the_world_robot_io_publishes_and_says_when_it_stops(
                 truth.append((stamp, scene.target.position.copy()))
                 zero3 = [0.0] * 3
                 running = m.RobotState.RUNNING
-                pub_state(m.RobotState(q=q.tolist(), dq=[0.0] * 7, ee_pos=zero3, ee_vel=zero3, mode=running))
+                pub_state(
+                    m.RobotState(
+                        q=q.tolist(), dq=[0.0] * 7, ee_pos=zero3, ee_vel=zero3, ee_cmd=zero3, mode=running
+                    )
+                )
                 observed = m.Target(
                     position=scene.target.position.tolist(),
                     velocity=scene.target_velocity().tolist(),

@@ -40,7 +40,15 @@ ME = "0a1b2c3d4e5f6071"  # the learner session the arm obeys
 
 def state(seq: int, ee: list[float]) -> m.RobotState:
     return m.RobotState(
-        seq=seq, stamp=time.time(), q=Q, dq=[0.0] * 7, ee_pos=ee, ee_vel=[0.0] * 3, mode=1, session=ME
+        seq=seq,
+        stamp=time.time(),
+        q=Q,
+        dq=[0.0] * 7,
+        ee_pos=ee,
+        ee_vel=[0.0] * 3,
+        ee_cmd=ee,
+        mode=1,
+        session=ME,
     )
 
 

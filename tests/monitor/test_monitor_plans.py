@@ -23,7 +23,8 @@ def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):
         def state(tick: int, y: float, chunk: int = -1, index: int = -1) -> None:
             put[m.STATE](
                 m.RobotState(
-                    ee_pos=[0.5, y, 0.3], ee_vel=zero3, mode=m.RobotState.RUNNING, tick=tick,
+                    ee_pos=[0.5, y, 0.3], ee_vel=zero3, ee_cmd=[0.5, y, 0.3], mode=m.RobotState.RUNNING,
+                    tick=tick,
                     played_chunk=chunk, played_index=index, chunk_seq=max(chunk, 0), session=me,
                 )
             )  # fmt: skip

@@ -345,7 +345,14 @@ def _target(r: np.random.Generator, valid: bool, status: int) -> m.Target:
 
 GENUINE: dict[m.Topic[Any], Callable[[np.random.Generator], m.Message]] = {
     m.STATE: lambda r: m.RobotState(
-        q=_v(r, 7), dq=_v(r, 7), ee_pos=_v(r, 3), ee_vel=_v(r, 3), mode=1, session=ME, chunk_seq=-1
+        q=_v(r, 7),
+        dq=_v(r, 7),
+        ee_pos=_v(r, 3),
+        ee_vel=_v(r, 3),
+        ee_cmd=_v(r, 3),
+        mode=1,
+        session=ME,
+        chunk_seq=-1,
     ),
     m.TARGET: lambda r: _target(r, valid=True, status=m.Target.TRACKING),
     m.TARGET_TRUTH: lambda r: _target(r, valid=False, status=m.Target.NONE),
