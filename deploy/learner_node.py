@@ -32,6 +32,7 @@ from bus.signing import ForgedMessage, Fresh, authentic
 from bus.transport import Bus
 from common.heap import release_free_heap
 from deploy.config import StackConfig
+from deploy.run_report import started_from
 from deploy.plan_channel import DelayedSender, PlanDrop
 from deploy.policy_wire import snapshot_message
 from deploy.zenoh_env import EnvSettings, EnvStopped, ReachSpec, TakenOver, ZenohReachEnv
@@ -226,6 +227,7 @@ class LearnerNode(Node):
                 success=bool(last.success) if last and last.success is not None else False,
                 paused=self._paused.is_set(),
                 algo=self.cfg.algo,
+                started_from=started_from(getattr(self.agent, "started_from", None)),
             )
         )
 

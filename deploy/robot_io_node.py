@@ -278,7 +278,11 @@ class RobotIONode(Node):
                     preempted_by_opening=by.opening if by is not None else m.ActionChunk.NONE,
                 )
             )
-        self._pub_state(robot_state_message(result.state, self.instance))
+        self._publish_world(result.state)
+
+    def _publish_world(self, state: ArmState) -> None:
+        """The arm's state and, in simulation, the target's truth: each tick, and while homing."""
+        self._pub_state(robot_state_message(state, self.instance))
         if self._pub_truth is not None:
             scene = self.scene
             self._pub_truth(
@@ -301,7 +305,7 @@ class RobotIONode(Node):
             try:
                 # A reset is how a learner session takes over, numbering on from its next chunk.
                 self.controller.take_over(request.session, request.next_chunk)
-                state = self.controller.reset(seed, time.monotonic)
+                state = self.controller.reset(seed, time.monotonic, self._publish_world)
                 reply = m.ResetReply(ok=True, state=robot_state_message(state, self.instance, time.time()))
             except (TakeoverRefused, ArmHeld) as exc:  # a foreign session (a safety event), or held
                 reply = m.ResetReply(ok=False, detail=f"reset refused: {exc}")

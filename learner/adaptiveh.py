@@ -515,7 +515,9 @@ class AdaptiveH:
         if not states:
             return None
         cfg = self.config
-        if cfg.advantage_lambda > 0.0:  # the samples whose λ-advantage is complete, not the segment's own
+        if cfg.frozen:
+            pass  # the policy as it was handed over (the critic and the retreat's field still learn)
+        elif cfg.advantage_lambda > 0.0:  # the samples whose λ-advantage is complete, not the segment's own
             matured, self._matured = self._matured, []
             if matured:
                 upd_states, upd_grads = zip(*matured, strict=True)
@@ -524,7 +526,7 @@ class AdaptiveH:
                 )
         else:
             self.policy.update(states, grads, self.alpha, cfg.weight_decay, cfg.mean_limit)
-        if self.replay is not None:
+        if self.replay is not None and not cfg.frozen:
             self._replay_update()
         record = SegmentRecord(
             index=self.log.segment_count,

@@ -73,6 +73,8 @@ class AdaptiveHConfig(Section):
     # by a linear fit of its one-step residuals over the last ``plan_model_memory`` steps.
     plan_model: Literal["nominal", "corrected"] = "nominal"
     plan_model_memory: int = Field(1000, ge=2)
+    # The policy is never updated: a handed-off policy measured as it is (bench/handoff.py's "frozen").
+    frozen: bool = False
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = Field(50, ge=1)
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)

@@ -232,7 +232,13 @@ class MonitorState:
 
     def _telemetry(self, t: m.LearnerTelemetry) -> None:
         with self.lock:
-            self.learner = {"step": t.global_step, "episode": t.episode, "paused": t.paused, "algo": t.algo}
+            self.learner = {
+                "step": t.global_step,
+                "episode": t.episode,
+                "paused": t.paused,
+                "algo": t.algo,
+                "started_from": t.started_from,
+            }
             if t.episode and (not self.returns or self.returns[-1]["episode"] != t.episode):
                 self.returns.append({"episode": t.episode, "ret": t.episode_return, "success": t.success})
 

@@ -86,6 +86,14 @@ class FrankaConfig(Section):
         return self
 
 
+class MockArmConfig(Section):
+    """The PyBullet mock arm's own dynamics, for the reality-gap overlays (configs/gaps/): a real arm
+    tracks with its own gains and its commands take effect later than the mock's."""
+
+    position_gain: float = Field(0.3, gt=0, le=1)  # PyBullet's servo gain: lower tracks slower
+    actuation_delay_ms: float = Field(0.0, ge=0, le=500)  # each joint command takes effect this late
+
+
 class RobotConfig(Section):
     """The ``robot:`` section: backend, rates, limits and safety of one arm."""
 
@@ -118,6 +126,7 @@ class RobotConfig(Section):
     workspace: WorkspaceBox = WorkspaceBox()
     ik: IKConfig = IKConfig()
     franka: FrankaConfig = FrankaConfig()
+    mock: MockArmConfig = MockArmConfig()  # pybullet only
 
     @model_validator(mode="after")
     def _mock_arm_is_a_panda(self) -> RobotConfig:

@@ -404,13 +404,19 @@ class RobotController:
         self.backend.send_joint_command(result.q)
         return action
 
-    def reset(self, seed: int | None = None, clock: Callable[[], float] | None = None) -> ArmState:
+    def reset(
+        self,
+        seed: int | None = None,
+        clock: Callable[[], float] | None = None,
+        while_homing: Callable[[ArmState], None] | None = None,
+    ) -> ArmState:
         """Home pose and (in simulation) a new target motion; clears the queue and the watchdog. Refused
         with ``ArmHeld`` while the operator or a fault holds the arm: homing is a motion too.
 
         ``clock`` (the control loop's): the reset counts as a command when homing is done, so the watchdog
         holds the arm if no chunk follows within its timeout (a commander that went quiet after homing,
-        e.g. waiting for a target); without it the watchdog waits for the first chunk."""
+        e.g. waiting for a target); without it the watchdog waits for the first chunk. ``while_homing``:
+        called with the arm's state about once a period while a real arm moves home."""
         with self._lock:
             if not self.safety.accepts_commands():
                 held = ", ".join(sorted(self.safety.reasons - {"watchdog"}))
@@ -419,7 +425,8 @@ class RobotController:
             self._played = (-1, -1, 0.0)
             self.safety.clear("watchdog", "reset")
             self.safety.last_command = None
-        self.backend.reset(self.home, seed)
+        moving = None if while_homing is None else (lambda: while_homing(self.state()))
+        self.backend.reset(self.home, seed, moving)
         if clock is not None:
             with self._lock:
                 self.safety.last_command = clock()

@@ -167,10 +167,12 @@ class PandaScene:
         gui: bool = False,
         joint_force: float = 500.0,
         robot: SceneRobot | None = None,
+        position_gain: float = 0.3,
     ) -> None:
         self.robot: SceneRobot = robot or StandalonePanda()
         self.time_step = float(time_step)
         self.joint_force = float(joint_force)
+        self.position_gain = float(position_gain)
         self.motion = TargetMotion.preset(motion) if isinstance(motion, str) else motion
         self.client_id = pb.connect(pb.GUI if gui else pb.DIRECT)
         if self.client_id < 0:
@@ -253,7 +255,7 @@ class PandaScene:
                 targetPosition=float(q[i]),
                 targetVelocity=0.0,
                 force=self.joint_force,
-                positionGain=0.3,
+                positionGain=self.position_gain,
                 velocityGain=1.0,
                 physicsClientId=cid,
                 **kwargs,

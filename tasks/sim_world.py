@@ -30,6 +30,7 @@ def arm_scene(config: RobotConfig) -> PandaScene:
         seed=config.seed,
         time_step=config.period / config.physics_substeps,
         robot=robot_model(config.model),  # the config allows the Panda only here
+        position_gain=config.mock.position_gain,
     )
 
 

@@ -305,7 +305,7 @@ class SafetyEvent(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., kind: _Optional[_Union[SafetyEvent.Kind, str]] = ..., detail: _Optional[str] = ..., held: _Optional[bool] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class LearnerTelemetry(_message.Message):
-    __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo", "mac")
+    __slots__ = ("seq", "stamp", "global_step", "episode", "episode_return", "success", "paused", "algo", "mac", "started_from")
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
@@ -315,6 +315,7 @@ class LearnerTelemetry(_message.Message):
     PAUSED_FIELD_NUMBER: _ClassVar[int]
     ALGO_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    STARTED_FROM_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     global_step: int
@@ -324,7 +325,8 @@ class LearnerTelemetry(_message.Message):
     paused: bool
     algo: str
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    started_from: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ..., mac: _Optional[bytes] = ..., started_from: _Optional[str] = ...) -> None: ...
 
 class Control(_message.Message):
     __slots__ = ("seq", "stamp", "command", "jog", "mac")

@@ -36,7 +36,7 @@ import importlib
 import logging
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any
 
@@ -303,8 +303,15 @@ class FrankyBackend:
         self._stopping = True
         return True
 
-    def reset(self, q_home: np.ndarray, seed: int | None, timeout_s: float = 30.0) -> None:
-        """Move home point to point at ``franka.home_dynamics`` and wait there; a fault raises."""
+    def reset(
+        self,
+        q_home: np.ndarray,
+        seed: int | None,
+        while_moving: Callable[[], None] | None = None,
+        timeout_s: float = 30.0,
+    ) -> None:
+        """Move home point to point at ``franka.home_dynamics`` and wait there (``while_moving`` about once
+        a control period); a fault raises."""
         if self.scene is not None:
             self.scene.reset(seed)
         if self.fault() is not None:
@@ -316,8 +323,12 @@ class FrankyBackend:
         try:
             with self._loop_priority():
                 self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
-            if not self.robot.join_motion(timeout=timeout_s):
-                raise TimeoutError(f"franka did not reach home within {timeout_s} s")
+            deadline = time.monotonic() + timeout_s
+            while not self.robot.join_motion(timeout=self.config.period):
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"franka did not reach home within {timeout_s} s")
+                if while_moving is not None:
+                    while_moving()
             self._hold_at(np.asarray(q_home, float))
         except TimeoutError:
             raise

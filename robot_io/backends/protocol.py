@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -50,8 +51,12 @@ class RobotBackend(Protocol):
     def recover(self) -> bool:
         """Clear a driver error (reflex, lost connection); True when the arm accepts commands again."""
 
-    def reset(self, q_home: np.ndarray, seed: int | None) -> None:
-        """Go to ``q_home``; in simulation a ``seed`` also starts a new target motion."""
+    def reset(
+        self, q_home: np.ndarray, seed: int | None, while_moving: Callable[[], None] | None = None
+    ) -> None:
+        """Go to ``q_home``; in simulation a ``seed`` also starts a new target motion. A real arm's move
+        home takes seconds: ``while_moving`` is called about once a control period meanwhile (robot-io
+        keeps publishing the arm's state, so a camera replica and the operator see it move)."""
 
     def step(self) -> None:
         """Let one control period pass: the simulation advances; a real arm moves on its own."""

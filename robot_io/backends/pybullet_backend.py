@@ -6,6 +6,7 @@ robot_io imports neither ``sim`` nor PyBullet, so a real-arm config never loads 
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Protocol
 
 import numpy as np
@@ -47,6 +48,8 @@ class PyBulletBackend:
         self.config = config
         self.scene = scene
         self.substeps = config.physics_substeps
+        self.delay_s = config.mock.actuation_delay_ms / 1000.0
+        self._pending: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # (due, q, speed)
         self.scene.reset_robot(config.home_q)
 
     def read_state(self) -> JointState:
@@ -59,9 +62,13 @@ class PyBulletBackend:
         q = np.asarray(q, float)
         q_now, _ = self.scene.joint_state()
         speed = np.maximum(np.abs(q - q_now) / self.config.period, 1e-3)
+        if self.delay_s > 0:  # a gap overlay: the command takes effect ``mock.actuation_delay_ms`` later
+            self._pending.append((self.scene.time + self.delay_s, q, speed))
+            return
         self.scene.command_positions(q, max_velocity=speed)
 
     def hold(self) -> None:
+        self._pending.clear()
         self.scene.brake()
 
     def fault(self) -> Fault | None:
@@ -70,13 +77,22 @@ class PyBulletBackend:
     def recover(self) -> bool:
         return True  # the mock has no driver errors to clear
 
-    def reset(self, q_home: np.ndarray, seed: int | None) -> None:
+    def reset(self, q_home: np.ndarray, seed: int | None, while_moving: object = None) -> None:
+        """At once: the mock's arm is placed home, with nothing to wait for."""
+        self._pending.clear()
         self.scene.reset_robot(q_home)
         if seed is not None:  # a new target motion; without a seed the target keeps wandering
             self.scene.reset_target(seed)
 
     def step(self) -> None:
-        self.scene.step(self.substeps)
+        if not self._pending:
+            self.scene.step(self.substeps)
+            return
+        for _ in range(self.substeps):  # delayed commands take effect at the physics step they fall due
+            while self._pending and self._pending[0][0] <= self.scene.time + 1e-9:
+                _, q, speed = self._pending.popleft()
+                self.scene.command_positions(q, max_velocity=speed)
+            self.scene.step(1)
 
     def close(self) -> None:
         self.scene.close()

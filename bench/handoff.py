@@ -1,0 +1,338 @@
+"""What the learner does at the switch from simulator to arm: handing a trained policy to another world.
+
+Settings (each a stack config): ``franky_sim`` (configs/franka_sim.yaml against franky-sim, which this
+bench starts on a private loopback address: another simulator, another arm model, its own PD lag) and the
+reality-gap overlays on the PyBullet mock (configs/gaps/: ``slow_arm``, ``camera_offset``,
+``actuation_latency``, ``target_motion``). Variants per setting and seed:
+
+- ``scratch``: the product's default from an empty policy;
+- ``handoff``: from the in-process PyBullet policy of the same seed (``adaptiveh train --config
+  configs/reach.yaml --steps 10000``, trained here once per seed), learning on;
+- ``frozen``: the same policy, never updated (``learner.agent.frozen``);
+- ``fixed_h``: the same policy with the fixed-H learner at the ``handoff`` run's mean H.
+
+Per run: success by quarter, steps until 90 % rolling success (20 episodes), workspace clips, reflexes
+(``driver_error`` events), the achieved control rate while the arm is not homing (and the time spent
+homing), mean H per quarter, and H over the first 500 steps. Each run is kept in
+``results/handoff/<setting>/<variant>_s<seed>.json`` and not run again (resumable); ``results/handoff.json``
+and ``results/handoff.png`` summarise whatever has finished. One run at a time.
+
+    python bench/handoff.py [--settings franky_sim ...] [--variants ...] [--seeds 0 1 2] [--steps 6000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+from loopback import free_endpoint, unique_name  # noqa: E402
+
+from bus import messages as m  # noqa: E402
+from deploy.config import compose_stack_yaml  # noqa: E402
+from monitor import recording  # noqa: E402
+
+OUT = ROOT / "results" / "handoff"
+SOURCES = ROOT / "runs" / "handoff_sources"
+SETTINGS = {
+    "franky_sim": "configs/franka_sim.yaml",
+    "slow_arm": "configs/gaps/slow_arm.yaml",
+    "camera_offset": "configs/gaps/camera_offset.yaml",
+    "actuation_latency": "configs/gaps/actuation_latency.yaml",
+    "target_motion": "configs/gaps/target_motion.yaml",
+}
+VARIANTS = ("scratch", "handoff", "frozen", "fixed_h")
+SOURCE_STEPS = 10_000
+ROLLING = 20  # episodes in the rolling success rate
+HOMING_GAP_S = 0.2  # consecutive ticks further apart than this: the arm was homing (or held)
+FRANKY_HOST = "127.0.77.7"
+
+
+def source_policy(seed: int) -> Path:
+    """The in-process PyBullet policy of ``seed`` (trained once, then reused)."""
+    out = SOURCES / f"reach_s{seed}"
+    if not (out / "result.json").exists():
+        print(f"training the source policy, seed {seed} ({SOURCE_STEPS} steps in-process)", flush=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "deploy.cli",
+                "train",
+                "--config",
+                "configs/reach.yaml",
+                "--steps",
+                str(SOURCE_STEPS),
+                "--seed",
+                str(seed),
+                "--out",
+                str(out),
+                "--fresh",
+            ],
+            cwd=ROOT,
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+    return out / "checkpoint.pkl"
+
+
+def stack_config(setting: str, variant: str, seed: int, steps: int, tmp: Path, fixed_h: int | None) -> Path:
+    cfg = compose_stack_yaml(ROOT / SETTINGS[setting])
+    cfg["name"] = unique_name("hand")
+    cfg["zenoh"]["hub"] = free_endpoint()
+    cfg["robot"]["seed"] = seed
+    if cfg["robot"]["backend"] == "franka":
+        cfg["robot"]["franka"]["ip"] = FRANKY_HOST
+    agent = dict(cfg["learner"].get("agent") or {})
+    if variant == "frozen":
+        agent["frozen"] = True
+    if variant == "fixed_h":
+        cfg["learner"]["algo"] = "rkhs"
+        agent["fixed_h"] = fixed_h
+    cfg["learner"].update(steps=steps, seed=seed, checkpoint_dir=str(tmp / "learner"), agent=agent)
+    cfg["monitor"].update(port=0, foxglove_port=None)
+    cfg["recording"]["dir"] = str(tmp / "rec")
+    path = tmp / "stack.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | None) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        path = stack_config(setting, variant, seed, steps, tmp, fixed_h)
+        cmd = [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(tmp / "summary.json")]
+        if variant != "scratch":
+            cmd += ["--policy-from", str(source_policy(seed))]
+        t0 = time.time()
+        with (tmp / "up.log").open("w") as log:
+            up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=log, text=True)
+            for line in up.stdout:  # progress, as the stack prints it
+                if line.startswith("["):
+                    print(f"  {setting}/{variant} s{seed} {line.rstrip()}", flush=True)
+            up.wait()
+        if up.returncode != 0 or not (tmp / "summary.json").exists():
+            raise RuntimeError(
+                f"{setting}/{variant} s{seed}: adaptiveh up exited {up.returncode}:\n"
+                + (tmp / "up.log").read_text()[-3000:]
+            )
+        summary = json.loads((tmp / "summary.json").read_text())
+        result = json.loads((tmp / "learner" / "result.json").read_text())
+        ticks = control_rate(recording.read(summary["recording"]))
+    return {
+        "setting": setting,
+        "variant": variant,
+        "seed": seed,
+        "steps": summary["global_step"],
+        "wall_clock_s": round(time.time() - t0, 1),
+        "started_from": summary["started_from"],
+        **learning(result["episodes"], result["segments"], steps),
+        "workspace_clips": summary["safety_events"].get("workspace", 0),
+        "reflexes": summary["safety_events"].get("driver_error", 0),
+        "safety_events": summary["safety_events"],
+        **ticks,
+        "fixed_h": fixed_h,
+    }
+
+
+def learning(episodes: list[dict], segments: list[dict], steps: int) -> dict[str, Any]:
+    """Success by quarter (of episodes), steps to 90 % rolling success, and H by quarter and early on."""
+    success = np.array([bool(e["success"]) for e in episodes], float)
+    q = max(1, len(success) // 4)
+    by_quarter = (
+        [float(np.mean(success[i * q : (i + 1) * q])) for i in range(4)] if len(success) >= 4 else None
+    )
+    rolling = [np.mean(success[max(0, i - ROLLING + 1) : i + 1]) for i in range(len(success))]
+    reached = next(
+        (episodes[i]["global_step"] for i, r in enumerate(rolling) if i >= ROLLING - 1 and r >= 0.9), None
+    )
+    h = np.array([(s["global_step"], s["H"]) for s in segments], float).reshape(-1, 2)
+    quarter_steps = steps / 4
+    h_q = [
+        float(np.mean(h[(h[:, 0] > i * quarter_steps) & (h[:, 0] <= (i + 1) * quarter_steps), 1]))
+        if np.any((h[:, 0] > i * quarter_steps) & (h[:, 0] <= (i + 1) * quarter_steps))
+        else None
+        for i in range(4)
+    ]
+    early = h[h[:, 0] <= 500, 1]
+    return {
+        "success_by_quarter": by_quarter,
+        "steps_to_90pct_rolling": reached,
+        "mean_H_by_quarter": h_q,
+        "mean_H": float(np.mean(h[:, 1])) if len(h) else None,
+        "H_first_500_steps": float(np.mean(early)) if len(early) else None,
+        "episodes": len(episodes),
+    }
+
+
+def control_rate(records: list) -> dict[str, Any]:
+    """robot-io's tick rate while the arm is not homing, from the states' stamps; the time spent homing."""
+    ticks: dict[int, float] = {}
+    for topic, _, _, data in records:
+        if topic.endswith("/" + m.STATE.name):
+            s = m.RobotState.FromString(data)
+            ticks.setdefault(s.tick, s.stamp)
+    order = sorted(ticks)
+    gaps = np.array([ticks[b] - ticks[a] for a, b in zip(order, order[1:], strict=False) if b == a + 1])
+    running = gaps[gaps < HOMING_GAP_S]
+    return {
+        "control_hz_not_homing": round(len(running) / float(running.sum()), 2) if len(running) else None,
+        "control_hz_p5_window": _worst_window_hz(running),
+        "homing_s": round(float(gaps[gaps >= HOMING_GAP_S].sum()), 1),
+        "ticks": len(order),
+    }
+
+
+def _worst_window_hz(gaps: np.ndarray, window: int = 100) -> float | None:
+    """The 5th percentile, over windows of ``window`` ticks, of the tick rate in each."""
+    if len(gaps) < window:
+        return None
+    sums = np.convolve(gaps, np.ones(window), "valid")
+    return round(float(np.percentile(window / sums, 5)), 2)
+
+
+def run_file(setting: str, variant: str, seed: int) -> Path:
+    return OUT / setting / f"{variant}_s{seed}.json"
+
+
+def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per setting and variant: medians over seeds (and their ranges)."""
+    rows = []
+    for setting in SETTINGS:
+        for variant in VARIANTS:
+            group = [r for r in runs if r["setting"] == setting and r["variant"] == variant]
+            if not group:
+                continue
+            rows.append(
+                {
+                    "setting": setting,
+                    "variant": variant,
+                    "seeds": sorted(r["seed"] for r in group),
+                    "success_by_quarter": _median_lists([r["success_by_quarter"] for r in group]),
+                    "last_quarter_range": [
+                        min(r["success_by_quarter"][3] for r in group),
+                        max(r["success_by_quarter"][3] for r in group),
+                    ],
+                    "steps_to_90pct_rolling": [r["steps_to_90pct_rolling"] for r in group],
+                    "mean_H_by_quarter": _median_lists([r["mean_H_by_quarter"] for r in group]),
+                    "H_first_500_steps": _median([r["H_first_500_steps"] for r in group]),
+                    "workspace_clips": _median([r["workspace_clips"] for r in group]),
+                    "reflexes": max(r["reflexes"] for r in group),
+                    "control_hz_not_homing": _median([r["control_hz_not_homing"] for r in group]),
+                    "homing_s": _median([r["homing_s"] for r in group]),
+                }
+            )
+    return {"command": "python bench/handoff.py", "rows": rows, "runs": runs}
+
+
+def _median(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(np.median(values)) if values else None
+
+
+def _median_lists(lists: list) -> list | None:
+    lists = [x for x in lists if x]
+    if not lists:
+        return None
+    return [_median([x[i] for x in lists]) for i in range(len(lists[0]))]
+
+
+def table(summary: dict[str, Any]) -> str:
+    """The README's table (markdown)."""
+    lines = [
+        "| setting | start | seeds | success by quarter %, median | last quarter range % "
+        "| steps to 90 % rolling | mean H by quarter | H, first 500 steps | clips | reflexes "
+        "| control Hz not homing | homing s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in summary["rows"]:
+        sq = " / ".join("-" if x is None else f"{100 * x:.0f}" for x in r["success_by_quarter"] or [])
+        hq = " / ".join("-" if x is None else f"{x:.1f}" for x in r["mean_H_by_quarter"] or [])
+        to90 = ", ".join("-" if x is None else str(x) for x in r["steps_to_90pct_rolling"])
+        lo, hi = r["last_quarter_range"]
+        seeds = ", ".join(map(str, r["seeds"]))
+        cells = [r["setting"], r["variant"], seeds, sq, f"{100 * lo:.0f}-{100 * hi:.0f}", to90, hq]
+        cells += [_fmt(r["H_first_500_steps"]), _fmt(r["workspace_clips"], 0), str(r["reflexes"])]
+        cells += [_fmt(r["control_hz_not_homing"]), _fmt(r["homing_s"], 0)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _fmt(x: float | None, digits: int = 1) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def plot(summary: dict[str, Any], path: Path) -> None:
+    """One panel per setting: success by quarter for each start (median over seeds)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    settings = [s for s in SETTINGS if any(r["setting"] == s for r in summary["rows"])]
+    fig, axes = plt.subplots(1, len(settings), figsize=(min(15, 3.2 * len(settings)), 3.4), squeeze=False)
+    for ax, setting in zip(axes[0], settings, strict=True):
+        for r in (r for r in summary["rows"] if r["setting"] == setting):
+            ys = [np.nan if y is None else 100 * y for y in r["success_by_quarter"]]
+            ax.plot([1, 2, 3, 4], ys, marker="o", label=r["variant"])
+        ax.set(title=setting, xlabel="quarter of the run", ylim=(-5, 105), xticks=[1, 2, 3, 4])
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success, % (median over seeds)")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle("Handoff from the in-process PyBullet policy: success by quarter", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--steps", type=int, default=6000)
+    args = ap.parse_args()
+    todo = [(s, v, seed) for s in args.settings for seed in args.seeds for v in args.variants]
+    for n, (setting, variant, seed) in enumerate(todo, 1):
+        out = run_file(setting, variant, seed)
+        if out.exists():
+            continue
+        fixed_h = None
+        if variant == "fixed_h":
+            handoff = run_file(setting, "handoff", seed)
+            if not handoff.exists():
+                print(f"[{n}/{len(todo)}] {setting}/fixed_h s{seed}: needs the handoff run first; skipped")
+                continue
+            fixed_h = max(1, round(json.loads(handoff.read_text())["mean_H"]))
+        print(f"[{n}/{len(todo)}] {setting} / {variant} / seed {seed}", flush=True)
+        if setting == "franky_sim":
+            from franka_simulators import FrankySimServer
+
+            with FrankySimServer(FRANKY_HOST):
+                run = run_one(setting, variant, seed, args.steps, fixed_h)
+        else:
+            run = run_one(setting, variant, seed, args.steps, fixed_h)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(run, indent=1))
+        print(f"  -> success by quarter {run['success_by_quarter']}, mean H {run['mean_H']}", flush=True)
+    runs = [json.loads(p.read_text()) for p in sorted(OUT.glob("*/*.json"))]
+    summary = summarise(runs)
+    (ROOT / "results" / "handoff.json").write_text(json.dumps(summary, indent=1))
+    if summary["rows"]:
+        plot(summary, ROOT / "results" / "handoff.png")
+    print(table(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
