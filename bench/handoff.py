@@ -35,7 +35,8 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "scripts")]
+import results_tables  # noqa: E402
 from loopback import free_endpoint, unique_name  # noqa: E402
 
 from bus import messages as m  # noqa: E402
@@ -247,31 +248,6 @@ def _median_lists(lists: list) -> list | None:
     return [_median([x[i] for x in lists]) for i in range(len(lists[0]))]
 
 
-def table(summary: dict[str, Any]) -> str:
-    """The README's table (markdown)."""
-    lines = [
-        "| setting | start | seeds | success by quarter %, median | last quarter range % "
-        "| steps to 90 % rolling | mean H by quarter | H, first 500 steps | clips | reflexes "
-        "| control Hz not homing | homing s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in summary["rows"]:
-        sq = " / ".join("-" if x is None else f"{100 * x:.0f}" for x in r["success_by_quarter"] or [])
-        hq = " / ".join("-" if x is None else f"{x:.1f}" for x in r["mean_H_by_quarter"] or [])
-        to90 = ", ".join("-" if x is None else str(x) for x in r["steps_to_90pct_rolling"])
-        lo, hi = r["last_quarter_range"]
-        seeds = ", ".join(map(str, r["seeds"]))
-        cells = [r["setting"], r["variant"], seeds, sq, f"{100 * lo:.0f}-{100 * hi:.0f}", to90, hq]
-        cells += [_fmt(r["H_first_500_steps"]), _fmt(r["workspace_clips"], 0), str(r["reflexes"])]
-        cells += [_fmt(r["control_hz_not_homing"]), _fmt(r["homing_s"], 0)]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _fmt(x: float | None, digits: int = 1) -> str:
-    return "-" if x is None else f"{x:.{digits}f}"
-
-
 def plot(summary: dict[str, Any], path: Path) -> None:
     """One panel per setting: success by quarter for each start (median over seeds)."""
     import matplotlib
@@ -330,7 +306,8 @@ def main() -> int:
     (ROOT / "results" / "handoff.json").write_text(json.dumps(summary, indent=1))
     if summary["rows"]:
         plot(summary, ROOT / "results" / "handoff.png")
-    print(table(summary))
+    print(results_tables.handoff(summary))
+    print("python scripts/results_tables.py puts it in the README")
     return 0
 
 

@@ -32,9 +32,9 @@ from bus.signing import ForgedMessage, Fresh, authentic
 from bus.transport import Bus
 from common.heap import release_free_heap
 from deploy.config import StackConfig
-from deploy.run_report import started_from
 from deploy.plan_channel import DelayedSender, PlanDrop
 from deploy.policy_wire import snapshot_message
+from deploy.run_report import started_from
 from deploy.zenoh_env import EnvSettings, EnvStopped, ReachSpec, TakenOver, ZenohReachEnv
 from learner.protocol import Agent, RunLog
 from learner.provenance import checkpoint_path

@@ -135,6 +135,33 @@ def robot_io_tick(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def handoff(data: dict[str, Any]) -> str:
+    """``results/handoff.json``: per setting and start, medians over the seeds run."""
+    lines = [
+        "| setting | start | seeds | success by quarter %, median | last quarter % (range) | steps to 90 %"
+        " rolling | mean H by quarter | H, first 500 steps | clips | reflexes | Hz not homing | homing s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in data["rows"]:
+        lo, hi = r["last_quarter_range"]
+        cells = [
+            r["setting"],
+            r["variant"],
+            ", ".join(map(str, r["seeds"])),
+            " / ".join(_pct(x) for x in r["success_by_quarter"] or []),
+            f"{_pct(lo)}-{_pct(hi)}",
+            ", ".join(_fmt(x, "d") for x in r["steps_to_90pct_rolling"]),
+            " / ".join(_fmt(x, ".1f") for x in r["mean_H_by_quarter"] or []),
+            _fmt(r["H_first_500_steps"], ".1f"),
+            _fmt(r["workspace_clips"]),
+            str(r["reflexes"]),
+            _fmt(r["control_hz_not_homing"], ".1f"),
+            _fmt(r["homing_s"]),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def plans_point(data: dict[str, Any], method: str) -> str:
     """A plans-bench summary (``results/plans``, or ``results/plans_s10``: the front, the default and the
     corrected option on 10 seeds): one plan-retreat point per setting against issue #33's goals."""
@@ -146,6 +173,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "sim_camera": ("results/vision_bench.json", sim_camera),
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
+    "handoff": ("results/handoff.json", handoff),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
     "plans_corrected": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-corrected")),
     "plans_s10_default": ("results/plans_s10/summary.json", partial(plans_point, method="adaptiveh-default")),
