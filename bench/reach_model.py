@@ -12,6 +12,12 @@ with a learner-like policy (head for the target, Gaussian exploration of 1 and 3
   *tracked* one (``predict_reach`` as it is in the code).
 
     python bench/reach_model.py             # ~1 min; writes results/reach_model.json
+
+Another arm's tracking (``robot.tracking``) comes from a stack run on it, its recording's transitions
+(the actor's executed ticks: whole 50-step episodes of consecutive ticks), fitted and tested the same way:
+
+    python bench/reach_model.py --recording runs/franka_sim/recordings/RUN.mcap \
+        --out results/reach_model_franky_sim.json
 """
 
 from __future__ import annotations
@@ -72,8 +78,8 @@ def fit_tracking(episodes: list[tuple[np.ndarray, np.ndarray]], dt: float) -> di
             den += float(mean_v @ mean_v)
     ratio = num / den
     best = (np.inf, 0.0, 0.0)
-    for s in np.arange(0.025, 0.0501, 0.0025):
-        for g in np.arange(0.8, 1.001, 0.025):
+    for s in np.arange(0.01, 0.0501, 0.0025):
+        for g in np.arange(0.5, 1.201, 0.025):
             errors = open_loop_errors(
                 episodes, partial(predict_reach, tracking=ArmTracking(g, s, ratio)), dt, horizon=10
             )
@@ -104,11 +110,70 @@ def open_loop_errors(episodes, model, dt: float, horizon: int | None = None) -> 
     return {str(h): round(1000.0 * sums[h - 1] / counts, 1) for h in keys}
 
 
+def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(observations, executed raw actions) of each whole ``EPISODE``-step episode of consecutive ticks in
+    a stack recording's transitions (an episode with an outage or a restart in it is left out)."""
+    from bus import messages as m
+    from monitor import recording
+
+    by_episode: dict[int, list] = {}
+    for topic, _, _, data in recording.read(path):
+        if topic.endswith("/" + m.TRANSITIONS.name):
+            t = m.Transition.FromString(data)
+            by_episode.setdefault(t.episode, []).append(t)
+    out = []
+    for steps in by_episode.values():
+        chained = all(np.allclose(a.next_obs, b.obs) for a, b in zip(steps, steps[1:], strict=False))
+        if len(steps) == EPISODE and chained:
+            obs = np.asarray([steps[0].obs] + [t.next_obs for t in steps], float)
+            out.append((obs, np.asarray([t.raw_action for t in steps], float)))
+    return out
+
+
+def fit_recording(path: str, out_path: str) -> int:
+    """``robot.tracking`` of the arm a stack recording ran on: fitted on even episodes, tested on odd."""
+    t0 = time.monotonic()
+    episodes = recorded_episodes(path)
+    if len(episodes) < 4:
+        raise SystemExit(f"{path}: {len(episodes)} whole {EPISODE}-step episodes; need at least 4")
+    fit_eps, test_eps = episodes[::2], episodes[1::2]
+    dt = 0.05
+    fitted = fit_tracking(fit_eps, dt)
+    tracking = ArmTracking(fitted["track_gain"], fitted["track_step_m"], fitted["track_velocity_ratio"])
+    result = {
+        "command": f"python bench/reach_model.py --recording {path} --out {out_path}",
+        "recording": path,
+        "fitted_on_even_episodes": fitted,
+        "robot.tracking": {
+            "gain": tracking.gain,
+            "step_m": tracking.step_m,
+            "velocity_ratio": tracking.velocity_ratio,
+        },
+        "open_loop_ee_error_mm_by_horizon_on_odd_episodes": {
+            "the mock's (tasks.reach.TRACKING)": open_loop_errors(test_eps, predict_reach, dt),
+            "fitted": open_loop_errors(test_eps, partial(predict_reach, tracking=tracking), dt),
+            "commanded (moves by the action)": open_loop_errors(
+                test_eps, partial(predict_reach, tracking=FACE_VALUE), dt
+            ),
+        },
+        "episodes": {"fit": len(fit_eps), "test": len(test_eps), "steps_each": EPISODE},
+        "wall_s": round(time.monotonic() - t0, 1),
+    }
+    print(json.dumps(result, indent=2))
+    out = ROOT / out_path
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {out}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=16, help="half to fit, half to test")
+    ap.add_argument("--recording", default=None, help="fit another arm's tracking from a stack recording")
     ap.add_argument("--out", default="results/reach_model.json")
     args = ap.parse_args()
+    if args.recording is not None:
+        return fit_recording(args.recording, args.out)
     t0 = time.monotonic()
     env = NSReachEnv(motion="slow", max_episode_steps=EPISODE, seed=0)
     dt = env.config.period

@@ -41,6 +41,7 @@ from learner.provenance import checkpoint_path
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
+from tasks.reach import TRACKING, ArmTracking
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
@@ -65,6 +66,7 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
         latency_ms=lc.latency_ms,
         robot_model=cfg.robot.model,
+        tracking=TRACKING if cfg.robot.tracking is None else ArmTracking(**cfg.robot.tracking.model_dump()),
     )
 
 

@@ -44,6 +44,8 @@ from bus.transport import Bus
 from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
 from learner.plans import Executed, Plan, opening
 from tasks.reach import (
+    TRACKING,
+    ArmTracking,
     predict_reach,
     reach_distance,
     reach_observation,
@@ -96,6 +98,7 @@ class EnvSettings:
     reset_timeout_s: float = 30.0
     target_timeout_s: float = 0.5
     robot_model: str = "panda"  # robot.model: the arm a checkpoint records (learner.provenance)
+    tracking: ArmTracking = TRACKING  # robot.tracking: how the arm follows a step (the plan model's)
 
 
 def _seen_at(target: m.Target | None) -> float:
@@ -151,7 +154,8 @@ class ReachSpec(gym.Env):
 
     def predict_next(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
         """The plan model: the reach task's (``tasks.reach.predict_reach``) at the robot's control period."""
-        return predict_reach(obs, action, self.period, self.settings.max_step_m, workspace=self.workspace)
+        s = self.settings
+        return predict_reach(obs, action, self.period, s.max_step_m, s.tracking, self.workspace)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         raise RuntimeError("ReachSpec has no robot: the actor beside the arm steps the task")

@@ -86,6 +86,17 @@ class FrankaConfig(Section):
         return self
 
 
+class TrackingConfig(Section):
+    """How this arm's commanded TCP follows a displacement step within one control period, for the reach
+    plan model (``tasks.reach.ArmTracking``): |moved| = step_m * tanh(gain * |step| / step_m), and the
+    measured velocity it then reports as ``velocity_ratio`` of the period's mean. Measure it on the arm:
+    ``python bench/reach_model.py --recording RUN.mcap`` fits it from a stack run's transitions."""
+
+    gain: float = Field(gt=0, le=2)
+    step_m: float = Field(gt=0, le=0.1)
+    velocity_ratio: float = Field(ge=0, le=2)
+
+
 class MockArmConfig(Section):
     """The PyBullet mock arm's own dynamics, for the reality-gap overlays (configs/gaps/): a real arm
     tracks with its own gains and its commands take effect later than the mock's."""
@@ -127,6 +138,8 @@ class RobotConfig(Section):
     ik: IKConfig = IKConfig()
     franka: FrankaConfig = FrankaConfig()
     mock: MockArmConfig = MockArmConfig()  # pybullet only
+    # The arm's measured tracking for the plan model; None: the PyBullet mock's (tasks.reach.TRACKING).
+    tracking: TrackingConfig | None = None
 
     @model_validator(mode="after")
     def _mock_arm_is_a_panda(self) -> RobotConfig:

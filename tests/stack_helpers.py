@@ -43,6 +43,19 @@ def write_stack_config(
     return path, cfg
 
 
+def run_up(path: Path, *args: str, timeout: float = 400) -> dict:
+    """``adaptiveh up`` on ``path`` to its end (extra ``args`` on its command line); its summary."""
+    out = path.parent / "summary.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return json.loads(out.read_text())
+
+
 def learn_one_episode(config: Path, checkpoint_dir: Path) -> dict:
     """Run ``adaptiveh learn`` for the config's 60 steps (one episode) and return its result.json."""
     learn = subprocess.run(

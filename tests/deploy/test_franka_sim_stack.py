@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import yaml
 from loopback import free_endpoint, unique_name
+from stack_helpers import run_up
 
 from bus import messages as m
 from deploy.config import compose_stack_yaml
@@ -45,19 +46,6 @@ def franka_sim_config(directory: Path, host: str, steps: int = STEPS, **learner)
     path = directory / "franka_sim.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
-
-
-def run_stack(path: Path, *args: str, timeout: float = 400) -> dict:
-    """``adaptiveh up`` on ``path`` to the end; its summary."""
-    out = path.parent / "summary.json"
-    proc = subprocess.run(
-        [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(out), *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return json.loads(out.read_text())
 
 
 def replica_errors(records: list) -> np.ndarray:
@@ -105,7 +93,7 @@ def replica_errors(records: list) -> np.ndarray:
 @pytest.mark.timeout(600)
 def test_the_rehearsal_plays_plans_through_franky_and_sees_its_target(tmp_path):
     with FrankySimServer(HOST):
-        summary = run_stack(franka_sim_config(tmp_path, HOST))
+        summary = run_up(franka_sim_config(tmp_path, HOST))
     actor = json.loads((tmp_path / "learner" / "actor.json").read_text())
     print(json.dumps({k: summary[k] for k in ("global_step", "reasons", "safety_events", "H")}, indent=1))
     print(json.dumps(actor, indent=1))

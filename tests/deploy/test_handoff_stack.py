@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 import pytest
-from stack_helpers import write_stack_config
+from stack_helpers import run_up, write_stack_config
 
 from bus import messages as m
 from deploy.run_report import summary_table
@@ -50,25 +50,7 @@ def first_planned_action(records: list) -> m.Transition:
 def test_the_first_plan_comes_from_the_handed_off_policy(tmp_path, reach_checkpoint):
     source_path, source = reach_checkpoint
     path, _ = write_stack_config(tmp_path, "handoff", vision_rate_hz=10.0, steps=100)
-    out = tmp_path / "summary.json"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "deploy.cli",
-            "up",
-            str(path),
-            "--summary",
-            str(out),
-            "--policy-from",
-            str(source_path),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=240,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    summary = json.loads(out.read_text())
+    summary = run_up(path, "--policy-from", str(source_path), timeout=240)
     assert summary["started_from"]["path"] == str(source_path)
     assert summary["started_from"]["steps"] == 400 and summary["started_from"]["arm"] == "panda"
     assert f"policy started from            | {source_path}" in summary_table(summary)

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -174,3 +175,20 @@ def test_config_show_prints_the_merged_config_or_names_the_bad_key(tmp_path):
     bad = _with(tmp_path, "robot", "watchdog_timeout_s", -1)
     out = subprocess.run([*show, str(bad)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "robot.watchdog_timeout_s" in out.stderr
+
+
+def test_the_plan_model_tracks_as_the_configured_arm_does():
+    """``robot.tracking`` (an arm's measured tracking) is what the stack's plan model predicts with; the
+    mock's constants where none is given."""
+    from deploy.learner_node import env_settings
+    from deploy.zenoh_env import ReachSpec
+    from tasks.reach import TRACKING, ArmTracking, predict_reach
+
+    obs, step = np.zeros(15), np.array([0.0, 0.04, 0.0])
+    obs[0:3] = (0.4, 0.0, 0.4)
+    franky = ReachSpec(env_settings(load_stack_config("configs/franka_sim.yaml")))
+    mock = ReachSpec(env_settings(load_stack_config("configs/sim.yaml")))
+    measured = ArmTracking(1.175, 0.02, 0.15)
+    assert franky.settings.tracking == measured and mock.settings.tracking == TRACKING
+    np.testing.assert_allclose(franky.predict_next(obs, step), predict_reach(obs, step, 0.05, tracking=measured))
+    assert franky.predict_next(obs, step)[1] < mock.predict_next(obs, step)[1]  # franky-sim's command lags
