@@ -256,7 +256,9 @@ def plot(summary: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     settings = [s for s in SETTINGS if any(r["setting"] == s for r in summary["rows"])]
-    fig, axes = plt.subplots(1, len(settings), figsize=(min(15, 3.2 * len(settings)), 3.4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(settings), figsize=(max(6.0, min(15.0, 3.2 * len(settings))), 3.6), squeeze=False
+    )
     for ax, setting in zip(axes[0], settings, strict=True):
         for r in (r for r in summary["rows"] if r["setting"] == setting):
             ys = [np.nan if y is None else 100 * y for y in r["success_by_quarter"]]
@@ -265,7 +267,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success, % (median over seeds)")
     axes[0][-1].legend(fontsize=8)
-    fig.suptitle("Handoff from the in-process PyBullet policy: success by quarter", fontsize=10)
+    fig.suptitle("Success by quarter: from scratch vs handed off from the PyBullet policy", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

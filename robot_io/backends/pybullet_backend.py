@@ -50,11 +50,14 @@ class PyBulletBackend:
         self.substeps = config.physics_substeps
         self.delay_s = config.mock.actuation_delay_ms / 1000.0
         self._pending: deque[tuple[float, np.ndarray, np.ndarray]] = deque()  # (due, q, speed)
+        self._commanded: np.ndarray | None = None  # the newest delayed command (JointState.q_cmd)
         self.scene.reset_robot(config.home_q)
 
     def read_state(self) -> JointState:
+        """Without a delay the servo reaches each command within its period: the command is the measured
+        arm. With one, the arm lags its command as a real one does, and says where it is commanded."""
         q, dq = self.scene.joint_state()
-        return JointState(q, dq, self.scene.time)
+        return JointState(q, dq, self.scene.time, None if self._commanded is None else self._commanded.copy())
 
     def send_joint_command(self, q: np.ndarray) -> None:
         """Servo to ``q`` at the constant speed that gets there in one control period (smooth, like an
@@ -64,11 +67,13 @@ class PyBulletBackend:
         speed = np.maximum(np.abs(q - q_now) / self.config.period, 1e-3)
         if self.delay_s > 0:  # a gap overlay: the command takes effect ``mock.actuation_delay_ms`` later
             self._pending.append((self.scene.time + self.delay_s, q, speed))
+            self._commanded = q.copy()
             return
         self.scene.command_positions(q, max_velocity=speed)
 
     def hold(self) -> None:
         self._pending.clear()
+        self._commanded = None
         self.scene.brake()
 
     def fault(self) -> Fault | None:
@@ -80,6 +85,7 @@ class PyBulletBackend:
     def reset(self, q_home: np.ndarray, seed: int | None, while_moving: object = None) -> None:
         """At once: the mock's arm is placed home, with nothing to wait for."""
         self._pending.clear()
+        self._commanded = None
         self.scene.reset_robot(q_home)
         if seed is not None:  # a new target motion; without a seed the target keeps wandering
             self.scene.reset_target(seed)

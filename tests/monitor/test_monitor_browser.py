@@ -95,6 +95,7 @@ def test_monitor_in_chromium(tmp_path):
             wait_until(
                 lambda: "ep " in page.inner_text("#learner"), 30, "learner telemetry on the page", every=0.2
             )
+            assert page.inner_text("#policy-from") == "an empty policy (no handoff)"  # what it began with
             # Tests write only to temporary folders; the README's picture is refreshed on request, with
             # ADAPTIVEH_MONITOR_SCREENSHOT=results/monitor_screenshot.png (this file's test alone).
             shot = Path(os.environ.get("ADAPTIVEH_MONITOR_SCREENSHOT", str(tmp_path / "monitor_full.png")))
