@@ -53,6 +53,7 @@ SETTINGS = {
     "target_motion": "configs/gaps/target_motion.yaml",
 }
 VARIANTS = ("scratch", "handoff", "frozen", "fixed_h")
+COLOURS = {"scratch": "tab:blue", "handoff": "tab:orange", "frozen": "tab:green", "fixed_h": "tab:red"}
 SOURCE_STEPS = 10_000
 ROLLING = 20  # episodes in the rolling success rate
 HOMING_GAP_S = 0.2  # consecutive ticks further apart than this: the arm was homing (or held)
@@ -262,11 +263,11 @@ def plot(summary: dict[str, Any], path: Path) -> None:
     for ax, setting in zip(axes[0], settings, strict=True):
         for r in (r for r in summary["rows"] if r["setting"] == setting):
             ys = [np.nan if y is None else 100 * y for y in r["success_by_quarter"]]
-            ax.plot([1, 2, 3, 4], ys, marker="o", label=r["variant"])
+            ax.plot([1, 2, 3, 4], ys, marker="o", label=r["variant"], color=COLOURS[r["variant"]])
         ax.set(title=setting, xlabel="quarter of the run", ylim=(-5, 105), xticks=[1, 2, 3, 4])
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("success, % (median over seeds)")
-    axes[0][-1].legend(fontsize=8)
+    axes[0][0].legend(fontsize=8, loc="lower right")
     fig.suptitle("Success by quarter: from scratch vs handed off from the PyBullet policy", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

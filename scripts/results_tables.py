@@ -159,7 +159,7 @@ def handoff(data: dict[str, Any]) -> str:
             _fmt(r["homing_s"]),
         ]
         lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return "\n".join(lines) + "\n"
 
 
 def plans_point(data: dict[str, Any], method: str) -> str:
