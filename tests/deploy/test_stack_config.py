@@ -190,5 +190,7 @@ def test_the_plan_model_tracks_as_the_configured_arm_does():
     mock = ReachSpec(env_settings(load_stack_config("configs/sim.yaml")))
     measured = ArmTracking(1.175, 0.02, 0.15)
     assert franky.settings.tracking == measured and mock.settings.tracking == TRACKING
-    np.testing.assert_allclose(franky.predict_next(obs, step), predict_reach(obs, step, 0.05, tracking=measured))
+    np.testing.assert_allclose(
+        franky.predict_next(obs, step), predict_reach(obs, step, 0.05, tracking=measured)
+    )
     assert franky.predict_next(obs, step)[1] < mock.predict_next(obs, step)[1]  # franky-sim's command lags
