@@ -49,7 +49,7 @@ class ArmState:
     session: str = ""  # the learner session the arm obeys; chunk numbers above are that session's
     chunk_stamp: float = 0.0  # the send times of chunk_seq and played_chunk (with the numbers: exact)
     played_stamp: float = 0.0
-    ee_cmd: np.ndarray | None = None  # the commanded TCP (``RobotState.ee_cmd``); None: ee_pos
+    ee_cmd: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the commanded TCP (ee_pos if none)
 
 
 @dataclass

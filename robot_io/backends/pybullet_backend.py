@@ -7,6 +7,7 @@ robot_io imports neither ``sim`` nor PyBullet, so a real-arm config never loads 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -82,7 +83,9 @@ class PyBulletBackend:
     def recover(self) -> bool:
         return True  # the mock has no driver errors to clear
 
-    def reset(self, q_home: np.ndarray, seed: int | None, while_moving: object = None) -> None:
+    def reset(
+        self, q_home: np.ndarray, seed: int | None, while_moving: Callable[[], None] | None = None
+    ) -> None:
         """At once: the mock's arm is placed home, with nothing to wait for."""
         self._pending.clear()
         self._commanded = None
