@@ -31,7 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' franky-sim launcher
 from franka_simulators import FrankySimServer  # noqa: E402
 
-from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+from robot_io.backends.franky_config import FrankaConfig  # noqa: E402
+from robot_io.config import RobotConfig  # noqa: E402
 from tasks.sim_world import robot_controller  # noqa: E402
 
 HOST = "127.0.0.61"

@@ -48,7 +48,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' franka-sim launche
 from franka_simulators import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
 
 from robot_io.backends import franky_backend  # noqa: E402
-from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+from robot_io.backends.franky_config import FrankaConfig  # noqa: E402
+from robot_io.config import RobotConfig  # noqa: E402
 
 HOST = "127.0.0.64"
 PERIOD = 0.05

@@ -54,8 +54,9 @@ from franka_simulators import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
 from common.proc_status import status_field  # noqa: E402
 from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.robot_io_node import RobotIONode  # noqa: E402
+from robot_io.backends.franky_config import FrankaConfig  # noqa: E402
 from robot_io.backends.franky_model import ModelMismatch  # noqa: E402
-from robot_io.config import FrankaConfig, RobotConfig  # noqa: E402
+from robot_io.config import RobotConfig  # noqa: E402
 
 HOST = "127.0.0.64"  # franka-sim's loopback address (libfranka always dials port 1337)
 SAMPLE_HZ = 100.0

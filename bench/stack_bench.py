@@ -9,11 +9,9 @@ count, episode length and target motion in-process on ``NSReach-v0``. The learne
 (``sim/target_truth``) so the comparison isolates the transport and process split, not vision.
 Writes ``results/stack_bench.json`` and ``results/stack_bench.png``.
 
-``--execution plan`` adds a third run: the same learner over Zenoh in plan execution (committed plans
-that the robot plays while the learner learns, a retreat preempting the rest), reported next to the
-closed-loop run; ``--latency-ms`` injects that much learner latency into both Zenoh runs (each chunk is
-published that late), so plan mode's last-quarter success is stated next to closed-loop's under the same
-delay. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--execution plan] [--latency-ms 250]
+``--latency-ms`` injects that much learner latency into the Zenoh run (each chunk is published that
+late). The actor beside the arm (``learner.execution: actor``, the product's default) is measured by
+bench/stack_robustness.py. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--latency-ms 250]
 [--algo rkhs --fixed-h 10]`` (the last two: the fixed-H learner instead of configs/sim.yaml's AdaptiveH).
 """
 
@@ -133,21 +131,19 @@ def quarters(eps: list[dict[str, Any]], key: str) -> list[float | None]:
     return [float(np.mean(v)) if v else None for v in vals]
 
 
-def run_zenoh(
-    cfg: dict[str, Any], steps: int, tmp: Path, execution: str = "closed_loop", latency_ms: float = 0.0
-) -> dict[str, Any]:
+def run_zenoh(cfg: dict[str, Any], steps: int, tmp: Path, latency_ms: float = 0.0) -> dict[str, Any]:
     cfg = json.loads(json.dumps(cfg))
     cfg["name"] = unique_name("bench")
     cfg["zenoh"] = {**cfg.get("zenoh", {}), "hub": free_endpoint()}
     cfg.pop("vision", None)
-    tmp = tmp / execution
+    tmp = tmp / "closed_loop"
     tmp.mkdir(parents=True, exist_ok=True)
     cfg["learner"].update(
         steps=steps,
         target_topic="sim/target_truth",
         checkpoint_dir=str(tmp / "l"),
         checkpoint_every=10**9,
-        execution=execution,
+        execution="closed_loop",
         latency_ms=latency_ms,
     )
     path = tmp / "stack.yaml"
@@ -183,7 +179,7 @@ def run_zenoh(
             **loop_rate(states, t0, t1, cfg["robot"]["control_rate_hz"]),
         },
         "state_to_command_latency": latency(states, chunks),
-        "execution": execution,
+        "execution": "closed_loop",
         "latency_ms": latency_ms,
         "chunk_preemptions": res["chunk_preemptions"],
         "dropped_actions": res["dropped_actions"],
@@ -234,10 +230,9 @@ def plot(out: dict[str, Any], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))  # 1540 px: a laptop screen
     labels = {
         "zenoh": ("over Zenoh, closed loop", "tab:blue"),
-        "zenoh_plan": ("over Zenoh, plan execution", "tab:green"),
         "in_process": ("in-process NSReach-v0", "tab:orange"),
     }
     for name, (label, col) in labels.items():
@@ -269,14 +264,6 @@ def plot(out: dict[str, Any], path: Path) -> None:
         f"retreats: Zenoh {out['zenoh']['retreats']}/{out['zenoh']['segments']} segments,"
         f" in-process {out['in_process']['retreats']}/{out['in_process']['segments']}",
     ]
-    if "zenoh_plan" in out:
-        plan = out["zenoh_plan"]
-        text += [
-            f"plan execution, latency {plan['latency_ms']:.0f} ms: last-quarter success"
-            f" {plan['success_by_quarter'][-1]} vs closed loop {out['zenoh']['success_by_quarter'][-1]}",
-            f"  retreats {plan['retreats']}/{plan['segments']}, dropped at retreat"
-            f" {plan['retreat_dropped']} ({plan['retreat_dropped_moving']} moving)",
-        ]
     axes[2].text(0.0, 0.95, "\n".join(text), va="top", family="monospace", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -289,12 +276,6 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=None, help="override learner.seed")
     ap.add_argument("--out", default=str(ROOT / "results/stack_bench.json"))
-    ap.add_argument(
-        "--execution",
-        choices=("closed_loop", "plan"),
-        default="closed_loop",
-        help="plan: also run plan execution over Zenoh, reported next to closed loop",
-    )
     ap.add_argument(
         "--latency-ms", type=float, default=0.0, help="learner latency injected into the Zenoh runs"
     )
@@ -312,8 +293,7 @@ def main() -> int:
     lc = cfg["learner"]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        zen = run_zenoh(cfg, args.steps, tmp, "closed_loop", args.latency_ms)
-        plan = run_zenoh(cfg, args.steps, tmp, "plan", args.latency_ms) if args.execution == "plan" else None
+        zen = run_zenoh(cfg, args.steps, tmp, args.latency_ms)
         inp = run_in_process(cfg, args.steps, tmp)
     out: dict[str, Any] = {
         "config": {
@@ -323,17 +303,16 @@ def main() -> int:
             "agent": lc.get("agent", {}),
             "max_episode_steps": lc["max_episode_steps"],
             "chunk_len": lc["chunk_len"],
-            "execution": args.execution,
+            "execution": "closed_loop",
             "latency_ms": args.latency_ms,
             "target_motion": cfg["robot"].get("target_motion"),
             "target": "sim/target_truth (ground truth both sides)",
         },
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()},
         "zenoh": zen,
-        **({"zenoh_plan": plan} if plan is not None else {}),
         "in_process": inp,
     }
-    runs = [name for name in ("zenoh", "zenoh_plan", "in_process") if name in out]
+    runs = [name for name in ("zenoh", "in_process") if name in out]
     for name in runs:
         c = out[name]["curve"]
         out[name]["return_by_quarter"] = quarters(c, "return")

@@ -45,8 +45,9 @@ from bus.transport import Bus, ZenohConfig, open_session  # noqa: E402
 from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.vision_node import SimFramePublisher  # noqa: E402
 from sim.panda_scene import PandaScene  # noqa: E402
+from vision.camera_model import Intrinsics  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera  # noqa: E402
-from vision.config import Intrinsics, VisionConfig  # noqa: E402
+from vision.config import VisionConfig  # noqa: E402
 from vision.pipeline import VisionPipeline  # noqa: E402
 
 

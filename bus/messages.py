@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
-from google.protobuf import unknown_fields
-from google.protobuf.descriptor import FieldDescriptor
+from google.protobuf import descriptor_pb2, unknown_fields
+from google.protobuf.descriptor import FieldDescriptor, FileDescriptor
 from google.protobuf.message import DecodeError
 from google.protobuf.message import Message as Message
 
@@ -42,6 +42,7 @@ from bus.schema.adaptiveh_pb2 import (
     Target,
     Transition,
 )
+from common.errors import AdaptiveHError
 
 Rejected = pb.Rejected  # recordings only: bytes that did not decode as their key's type
 NAMESPACE = "adaptiveh"
@@ -50,7 +51,7 @@ M = TypeVar("M", bound=Message)
 R = TypeVar("R", bound=Message)
 
 
-class MessageError(ValueError):
+class MessageError(AdaptiveHError, ValueError):
     """Bytes that are not a valid message of the expected type; the text names the field. ``reason``
     groups errors for rate-limited reporting: undecodable, invalid, forged, replayed."""
 
@@ -225,11 +226,26 @@ def enum(cls: type[Message], field: str, name: str) -> int:
     return value.number
 
 
+def file_descriptor_set(msg_type: type[Message]) -> bytes:
+    """The serialized ``FileDescriptorSet`` of ``msg_type``'s file and everything it imports."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(fd: FileDescriptor) -> None:
+        if fd.name in seen:
+            return
+        for dep in fd.dependencies:
+            add(dep)
+        seen.add(fd.name)
+        fd.CopyToProto(fds.file.add())
+
+    add(msg_type.DESCRIPTOR.file)
+    return fds.SerializeToString()
+
+
 # -- numpy views ---------------------------------------------------------------------------------------
 def action_array(chunk: ActionChunk) -> np.ndarray:
-    """The chunk's actions as an N x 3 array (metres per control period)."""
-    if len(chunk.actions) % 3:
-        raise MessageError(f"ActionChunk.actions: length {len(chunk.actions)} is not a multiple of 3")
+    """The chunk's actions as an N x 3 array (metres per control period); decoding checked the length."""
     return np.asarray(chunk.actions, dtype=float).reshape(-1, 3)
 
 

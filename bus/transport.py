@@ -28,7 +28,7 @@ from bus.messages import Message, MessageError, Service, Topic
 from bus.security import AuthConfig, RouterConfig, TlsConfig
 from bus.signing import Verifier, sign, signed
 from common.config import Section
-from common.throttle import ReportThrottle
+from common.throttle import Throttle
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
@@ -229,7 +229,7 @@ class Bus:
         self.robot = robot
         self.signing_key = key
         self.bad_messages: dict[str, int] = {}  # per topic: undecodable, invalid, forged or replayed
-        self._reports = ReportThrottle()  # one log line per topic and reason per interval, not per message
+        self._reports = Throttle("like it")  # one log line per topic and reason per interval, not per message
         self.renewals = 0  # sessions reopened after a stall (``open``)
         self._lock = threading.Lock()
         self._declared: list[_Declared] = []
@@ -389,9 +389,10 @@ class Bus:
     def report_bad(self, name: str, exc: Exception) -> None:
         """Count a bad message on topic ``name`` and log it, rate-limited per key and reason (a part that
         judges messages itself, such as robot-io's commands, reports its refusals here too)."""
+        reason = getattr(exc, "reason", type(exc).__name__)
         with self._lock:
             self.bad_messages[name] = self.bad_messages.get(name, 0) + 1
-            line = self._reports.report(self.key(name), getattr(exc, "reason", type(exc).__name__), str(exc))
+        line = self._reports.report(str(exc), (self.key(name), reason))
         if line is not None:
             log.warning("bad message on %s: %s", self.key(name), line)
 

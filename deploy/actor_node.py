@@ -12,7 +12,6 @@ delays improvement, not control, and a stopped or restarting learner stops nothi
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import threading
@@ -24,16 +23,15 @@ import numpy as np
 
 from bus import messages as m
 from bus.node import Node
+from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
-from deploy.learner_node import env_settings
 from deploy.plan_channel import PlanDrop
 from deploy.policy_wire import snapshot_from_message
-from deploy.zenoh_env import EnvStopped, ZenohReachEnv
+from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig
 from learner.plans import Executed, Plan, opening
 from learner.snapshot import PolicySnapshot, SnapshotError
-from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
 END = {
@@ -53,8 +51,8 @@ class ActorNode(Node):
         super().__init__(settings.name, settings.zenoh, token=control_token)
         lc = settings.learner
         # The actor plays each plan at once: the learner's latency delays snapshots, not plans.
-        self.env = ZenohReachEnv(self.bus, dataclasses.replace(env_settings(settings), latency_ms=0.0))
-        self.actor = Actor(self.env, AdaptiveHConfig(**lc.agent_config(settings.robot.period)), lc.seed)
+        self.env = ZenohReachEnv(self.bus, env_settings(settings))
+        self.actor = Actor(self.env, AdaptiveHConfig(**lc.agent_config()), lc.seed)
         self.out = Path(lc.checkpoint_dir) / "actor.json"
         self.handoff = lc.policy_from  # then the first plan waits for the learner's first snapshot
         self.error = ""  # why acting ended, when it did not end by a stop
@@ -68,7 +66,7 @@ class ActorNode(Node):
         self.starts = {"plan_starts": 0, "plan_starts_late": 0, "late_ticks": 0}
         self.retreat_preemptions = 0  # a retreat's plan preempting the rest of the one before
         self.retreat_dropped = 0
-        self._refusals = EventThrottle("refused snapshots")
+        self._refusals = Throttle("refused snapshots", EVENT_EVERY_S)
         self.env.on_plan_dropped = self._on_plan_dropped
         self._pub_transition = self.bus.publisher(m.TRANSITIONS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
@@ -79,7 +77,7 @@ class ActorNode(Node):
     def _on_snapshot(self, msg: m.PolicySnapshot) -> None:
         try:
             snap = snapshot_from_message(msg)
-            snap.check(self.actor.state_dim, self.actor.action_dim, self.actor.max_centers)
+            self.actor.check(snap)
             with self._lock:
                 newest = max(self.actor.version, self._offered.version if self._offered else -1)
                 if snap.version == newest:
@@ -99,11 +97,12 @@ class ActorNode(Node):
         if log_it:
             self.bus.report_bad(m.POLICY.name, m.MessageError(why, "out_of_range"))  # rate-limited
         detail = f"policy snapshot refused, the policy of version {self.actor.version} keeps running: {why}"
-        self._report_refusal(self._refusals.detail(detail, time.monotonic()))
+        self._report_refusal(self._refusals.report(detail))
 
     def _report_held_back(self) -> None:
         """Snapshots the throttle held back, once their window ends (a burst with nothing after)."""
-        self._report_refusal(self._refusals.overdue(time.monotonic()))
+        for detail in self._refusals.overdue():
+            self._report_refusal(detail)
 
     def _report_refusal(self, detail: str | None) -> None:
         if detail is not None:
@@ -113,7 +112,7 @@ class ActorNode(Node):
         with self._lock:
             snap, self._offered = self._offered, None
         if snap is not None:
-            self.actor.load(snap)  # checked on arrival against the same dimensions
+            self.actor.load(snap)
             self.counts["snapshots"] += 1
 
     # -- acting --------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ import sys  # noqa: E402
 from bus.security import set_command_identity  # noqa: E402
 from common.config import ConfigError  # noqa: E402
 from deploy import commands  # noqa: E402
-from deploy.commands import die_with_supervisor  # noqa: E402
+from deploy.part_env import die_with_supervisor  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,7 +9,6 @@ take the result (or its sections), so a key is read, coerced and checked in one 
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Literal
 
@@ -70,17 +69,15 @@ class LearnerConfig(Section):
     # keep learning. Checked against this task when the stack starts (learner.provenance); a run that
     # already has its own checkpoint resumes that instead. Relative to the working directory.
     policy_from: str | None = None
-    # closed_loop: one action per step, sent as a chunk (above). plan: a segment is a committed plan that
-    # the robot plays while the learner learns from every executed tick (learner/plans.py,
-    # deploy/zenoh_env.py); a retreat preempts the rest. closed_loop stays the default until plan mode
-    # is measured to learn NS Reach at least as well through the stack (bench/stack_bench.py).
     # actor: the plans are made and judged by an actor beside the arm (``adaptiveh act``,
     # deploy/actor_node.py) from the newest policy snapshot this learner published; the learner learns
     # from the actor's stream of executed ticks, wherever it runs (adaptiveh and rkhs only).
-    execution: Literal["closed_loop", "plan", "actor"] = "closed_loop"
+    # closed_loop: the learner drives the arm, one action per step sent as a chunk (above): every
+    # registry agent, the SB3 baselines included.
+    execution: Literal["closed_loop", "actor"] = "closed_loop"
     # The learner's thinking time made real: each chunk (actor: each policy snapshot) is published this
-    # late (plan mode: the old plan keeps playing meanwhile; closed loop: the last chunk's tail does;
-    # actor: the actor keeps planning with the snapshot it has).
+    # late (closed loop: the last chunk's tail plays meanwhile; actor: the actor keeps planning with the
+    # snapshot it has).
     latency_ms: float = Field(0.0, ge=0, le=10_000)
 
     @field_validator("agent")
@@ -100,9 +97,7 @@ class LearnerConfig(Section):
         return agent
 
     @model_validator(mode="after")
-    def _plan_mode_supported(self) -> LearnerConfig:
-        if self.execution == "plan" and "execution" not in AGENT_CONFIGS[self.algo].model_fields:
-            raise ValueError(f"execution plan: algo {self.algo} has no plan mode")
+    def _actor_supported(self) -> LearnerConfig:
         if self.execution == "actor" and self.algo not in ACTOR_ALGOS:
             raise ValueError(f"execution actor: algo {self.algo} has no actor; use one of {ACTOR_ALGOS}")
         if self.policy_from is not None and self.algo not in ACTOR_ALGOS:
@@ -118,16 +113,12 @@ class LearnerConfig(Section):
         bounds = [getattr(agent, name) for name in ("h_max", "fixed_h") if hasattr(agent, name)]
         return max(bounds) if bounds else None
 
-    def agent_config(self, period_s: float) -> dict[str, Any]:
-        """``agent`` with the execution mode; in plan mode the agent plans ahead over the actions that
-        play during the latency (``latency_steps``: latency_ms in control periods, rounded up), while the
-        env, not the agent, delays the plan."""
+    def agent_config(self) -> dict[str, Any]:
+        """``agent`` with the execution mode: an actor's agent plans (from the state the arm is in: no
+        latency to plan over, the snapshot is what arrives late)."""
         if self.execution == "closed_loop":
             return dict(self.agent)
-        if self.execution == "actor":  # the actor plans from the state it is in: no latency to plan over
-            return {**self.agent, "execution": "plan", "latency_steps": 0}
-        steps = math.ceil(self.latency_ms / 1000.0 / period_s - 1e-9)
-        return {**self.agent, "execution": "plan", "latency_steps": steps}
+        return {**self.agent, "execution": "plan", "latency_steps": 0}
 
 
 class RecordingConfig(Section):

@@ -8,10 +8,9 @@ finished episode; obeys ``control`` pause/resume (with the operator token when o
 (``bus.learner_session``: robot-io obeys only the session that took over with the latest reset);
 checkpoints to ``checkpoint_dir/checkpoint.pkl`` every ``checkpoint_every`` steps and at the end, and
 resumes from it on restart. In closed loop, AdaptiveH's chunk tail can be its own plan: the policy mean
-rolled forward on the task's model (``learner.plan: policy``). With ``learner.execution: plan`` the agent
-plays committed plans through the env (``deploy.zenoh_env``), learning from every executed tick; a
-retreat's plan preempts the rest of the old one, and the planned actions that drops (the non-zero ones
-apart: real motion abandoned) are counted as ``retreat_dropped`` / ``retreat_dropped_moving``.
+rolled forward on the task's model (``learner.plan: policy``); a retreat's first chunk preempts the rest
+of the one before, and the planned actions that drops (the non-zero ones apart: real motion abandoned)
+are counted as ``retreat_dropped`` / ``retreat_dropped_moving``.
 """
 
 from __future__ import annotations
@@ -35,54 +34,14 @@ from deploy.config import StackConfig
 from deploy.plan_channel import DelayedSender, PlanDrop
 from deploy.policy_wire import snapshot_message
 from deploy.run_report import started_from
-from deploy.zenoh_env import EnvSettings, EnvStopped, ReachSpec, TakenOver, ZenohReachEnv
+from deploy.zenoh_env import EnvStopped, ReachSpec, TakenOver, ZenohReachEnv, env_settings
 from learner.protocol import Agent, RunLog
-from learner.provenance import checkpoint_path
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
-from tasks.reach import TRACKING, ArmTracking
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
-
-
-def env_settings(cfg: StackConfig) -> EnvSettings:
-    """The reach env over Zenoh: the robot's workspace, step and rate, and the learner's task settings."""
-    lc = cfg.learner
-    return EnvSettings(
-        workspace_lo=cfg.robot.workspace.lo,
-        workspace_hi=cfg.robot.workspace.hi,
-        max_step_m=cfg.robot.max_step_m,
-        control_rate_hz=cfg.robot.control_rate_hz,
-        max_episode_steps=lc.max_episode_steps,
-        chunk_len=lc.chunk_len,
-        target_topic=lc.target_topic,
-        target_lo=lc.target_box[0],
-        target_hi=lc.target_box[1],
-        target_speed_max=lc.target_speed_max,
-        step_timeout_s=lc.step_timeout_s,
-        target_timeout_s=lc.target_timeout_s,
-        execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
-        latency_ms=lc.latency_ms,
-        robot_model=cfg.robot.model,
-        tracking=TRACKING if cfg.robot.tracking is None else ArmTracking(**cfg.robot.tracking.model_dump()),
-    )
-
-
-def check_policy_source(settings: StackConfig) -> dict[str, Any] | None:
-    """What ``learner.policy_from`` hands the learner (``AdaptiveH.start_from``'s record), checked as the
-    learner will check it, so ``adaptiveh up`` refuses a wrong checkpoint before any part starts; None
-    without a handoff or when the learner resumes its own checkpoint instead. Raises ``HandoffMismatch``
-    naming the field, or ``FileNotFoundError``."""
-    lc = settings.learner
-    if lc.policy_from is None or (Path(lc.checkpoint_dir) / "checkpoint.pkl").exists():
-        return None
-    if not checkpoint_path(lc.policy_from).is_file():
-        raise FileNotFoundError(f"learner.policy_from: no checkpoint at {lc.policy_from}")
-    spec = ReachSpec(env_settings(settings))
-    agent = make_agent(lc.algo, spec, lc.seed, lc.agent_config(settings.robot.period))
-    return agent.start_from(lc.policy_from)
 
 
 REPUBLISH_S = 1.0  # how often the held policy is published again while no tick comes
@@ -150,10 +109,9 @@ class LearnerNode(Node):
             if self.stream
             else ZenohReachEnv(self.bus, env_settings(settings))
         )
-        agent_cfg = self.cfg.agent_config(settings.robot.period)
+        agent_cfg = self.cfg.agent_config()
         self.agent: Agent = make_agent(self.cfg.algo, self.env, self.cfg.seed, agent_cfg)
-        closed_loop = self.cfg.execution == "closed_loop"
-        if self.cfg.plan == "policy" and closed_loop and hasattr(self.agent, "step_env"):
+        if self.cfg.plan == "policy" and not self.stream and hasattr(self.agent, "step_env"):
             self.env.planner = self._plan
         self.ckpt = Path(self.cfg.checkpoint_dir) / "checkpoint.pkl"
         self.resumed_from = 0
@@ -246,8 +204,8 @@ class LearnerNode(Node):
                     global_step=rec.global_step,
                 )
             )
-            if self.cfg.execution == "closed_loop":
-                self.env.open_segment(rec.index + 1, rec.reason)  # plans carry their own (plan mode)
+            if not self.stream:
+                self.env.open_segment(rec.index + 1, rec.reason)
         new_episode = lg.episode_count > self._episodes_seen
         if lg.segment_count > self._segments_seen or new_episode:
             self._segments_seen, self._episodes_seen = lg.segment_count, lg.episode_count

@@ -24,17 +24,6 @@ log = logging.getLogger(__name__)
 MOVING_M = 1e-9  # a planned step longer than this is motion (zeros are the "stay put" of closed loop)
 
 
-def cap_steps(actions: np.ndarray, max_step: float) -> np.ndarray:
-    """Each step scaled down to at most ``max_step`` metres (the task's "norm capped at 5 cm per step").
-
-    The action box is per axis, so a planned step can be 5 cm * sqrt(3) long; the robot refuses a
-    plan with a step above ``robot.max_step_m``, so the sender caps it first (the same motion the
-    controller's own cap gives an in-process step)."""
-    actions = np.asarray(actions, float).reshape(-1, 3)
-    norms = np.linalg.norm(actions, axis=1, keepdims=True)
-    return actions * np.minimum(1.0, max_step / np.maximum(norms, 1e-12))
-
-
 @dataclass(frozen=True)
 class SentPlan:
     """A plan as it went out: the chunk number the robot reports it by, and why it was sent."""

@@ -35,12 +35,12 @@ from bus import messages as m
 from bus.learner_session import SESSIONS
 from bus.node import Node
 from bus.signing import ForgedMessage, Fresh, authentic
+from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
 from robot_io.action_queue import ChunkLabel
 from robot_io.command_gate import TakeoverRefused
 from robot_io.config import RobotConfig
 from robot_io.controller import ArmHeld, ArmState, RobotController, TickResult
-from robot_io.safety import EventThrottle
 
 log = logging.getLogger(__name__)
 LIVELINESS_QUERY_S = 1.0  # how long a reset waits for the network to confirm its session's token
@@ -113,7 +113,7 @@ class RobotIONode(Node):
         self.instance = secrets.token_hex(6)  # RobotState.instance: this process, not the one before it
         self.watch_peers = watch_peers
         self._fresh_reset, self._fresh_control = Fresh(), Fresh()
-        self._bad_events = EventThrottle("bad messages")
+        self._bad_events = Throttle("bad messages", EVENT_EVERY_S)
         super().__init__(settings.name, settings.zenoh, token=control_token)
         self.mac_key = self.bus.signing_key  # with a token, only signed chunks, resets and controls
         self._pub_state = self.bus.publisher(m.STATE)
@@ -149,12 +149,12 @@ class RobotIONode(Node):
             self.controller.refuse_plan("bad_message", f"{topic}: {exc}")
             self._wake.set()  # the control thread publishes the event and the dropped rest at once
             return
-        detail = self._bad_events.detail(f"{topic}: {exc}", time.monotonic())  # a flood must not flood
+        detail = self._bad_events.report(f"{topic}: {exc}")  # a flood must not flood
         if detail is not None:
             self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
     def _on_chunk(self, msg: m.ActionChunk) -> None:
-        actions = m.action_array(msg)  # decode already checked the length
+        actions = m.action_array(msg)
         if self.mac_key is not None and not authentic(msg, self.mac_key):
             detail = f"chunk {msg.seq} of session {msg.session[:16]!r}: not signed with the stack's token"
             self.controller.report_refusal(detail, time.monotonic())
@@ -250,8 +250,7 @@ class RobotIONode(Node):
     # -- publishing ----------------------------------------------------------------------------------
     def _report_held_back(self, now: float) -> None:
         """Bad messages the throttle held back, once their window ends (a burst with nothing after)."""
-        detail = self._bad_events.overdue(now)
-        if detail is not None:
+        for detail in self._bad_events.overdue(now):
             self._publish_safety("bad_message", detail, self.controller.safety.mode != "running")
 
     def _publish_safety(self, kind: str, detail: str, held: bool) -> None:

@@ -32,8 +32,8 @@ from bus.signing import mac_key
 from bus.transport import Bus, open_session
 from common.errors import AdaptiveHError
 from common.heap import ALLOCATOR_ENV
-from deploy.commands import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.config import ConfigError, load_stack_config
+from deploy.part_env import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.run_report import learning_curve
 from learner.run_summary import h_stats
 from monitor.foxglove.derive import Deriver, SceneSetup
@@ -273,7 +273,7 @@ class Stack:
             time.sleep(0.2)
 
     def run(self) -> dict[str, Any]:
-        from deploy.learner_node import check_policy_source  # the learner's own check, loaded when run
+        from deploy.handoff import check_policy_source  # the learner's own check, loaded when run
 
         try:
             self.handoff = check_policy_source(self.cfg)

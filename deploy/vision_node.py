@@ -24,13 +24,14 @@ import numpy as np
 from bus import messages as m
 from bus.node import Node
 from bus.transport import Bus
+from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import ConfigError, StackConfig
+from vision.camera_model import Intrinsics
 from vision.cameras.protocol import Camera, CameraError, Frame
-from vision.config import Intrinsics, VisionConfig
+from vision.config import VisionConfig
 from vision.pipeline import PipelineOutput, VisionPipeline, annotate
 
 log = logging.getLogger(__name__)
-EVENT_INTERVAL_S = 1.0  # at most one event per kind per second (with a count of the suppressed ones)
 
 
 # -- frames <-> messages -----------------------------------------------------------------------------
@@ -119,7 +120,7 @@ class VisionNode(Node):
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._pending: Frame | m.CameraFrame | None = None
-        self._events: dict[str, tuple[float, int]] = {}
+        self._events = Throttle("", EVENT_EVERY_S)  # one event per problem a second, with a count
         self._last_image = 0.0
         self._last_frame_wall = time.time()
         self.frames = 0
@@ -180,19 +181,13 @@ class VisionNode(Node):
         sends one event a second with a count, while a different problem is reported at once.
         ``logged``: also a log line (not for bad messages: the bus logs those, rate-limited per minute).
         """
-        now = time.monotonic()
-        key = f"{kind}:{key if key is not None else detail}"
-        with self._lock:
-            last, suppressed = self._events.get(key, (-1e9, 0))
-            if now - last < EVENT_INTERVAL_S:
-                self._events[key] = (last, suppressed + 1)
-                return
-            self._events[key] = (now, 0)
-        more = f" (+{suppressed} more since the last report)" if suppressed else ""
+        shown = self._events.report(detail, (kind, key if key is not None else detail))
+        if shown is None:
+            return
         if logged:
-            log.warning("vision %s: %s%s", kind, detail, more)
+            log.warning("vision %s: %s", kind, shown)
         kind_value = m.enum(m.SafetyEvent, "kind", kind)
-        self._pub_event(m.SafetyEvent(kind=kind_value, detail=f"vision: {detail}{more}", held=False))
+        self._pub_event(m.SafetyEvent(kind=kind_value, detail=f"vision: {shown}", held=False))
 
     def _handle(self, item: Frame | m.CameraFrame) -> None:
         if isinstance(item, m.CameraFrame):

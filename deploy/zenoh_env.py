@@ -7,18 +7,18 @@ control period with exactly ``a`` applied (gymnasium semantics: TD3/DDPG run on 
 Chunks are a receding horizon: the tail after ``a`` is a plan (``planner(obs, a, n)``, by default zero
 displacements = stay put) that the robot keeps playing if the learner is late, and the next step's chunk
 (higher ``seq``) preempts it; the robot reports the dropped count. Each step's chunk is a ``Plan`` sent
-through the same channel as plan mode's (below): its segment and why it began come from the learner
+through the same channel as the actor's plans (below): its segment and why it began come from the learner
 node (``open_segment``), so a retreat shows as the first chunk of a new segment preempting the old
-segment's plan, in robot-io's own status of that chunk, and the step is acknowledged as plan mode's
+segment's plan, in robot-io's own status of that chunk, and the step is acknowledged as the actor's
 ticks are: by the robot tick whose state names the chunk's first action as the one it played.
 Observation: ee position/velocity (from ``state``) and target position/velocity (from vision's
 ``target``, or ``sim/target_truth`` when configured), the same 15 values as in-process ``NSReach-v0``
 (the reach task's observation is shared).
 
-Plan execution (``learner.execution: plan``): the env is also the learner's ``PlanChannel``
-(``learner.plans``). ``send(plan)`` publishes one chunk with the plan's actions, its predicted
-end-effector path and its segment, after ``learner.latency_ms`` of real delay (on a sender thread: the
-learner never waits, and the old plan keeps playing meanwhile); ``advance()`` returns the robot's next
+The actor's plan channel (``deploy.actor_node``, ``learner.plans.PlanChannel``): ``send(plan)``
+publishes one chunk with the plan's actions, its predicted end-effector path and its segment, at once
+(the learner's latency delays the actor's policy snapshots, never its plans); ``advance()`` returns the
+robot's next
 control tick as an executed step, from the ``state`` stream, which names the tick and the chunk action
 it played: every tick once, in order, a tick with nothing queued as a hold (plan -1, zero action);
 ticks while the operator has the arm e-stopped or paused are not steps of the task and are passed over.
@@ -41,8 +41,11 @@ import numpy as np
 from bus import messages as m
 from bus.learner_session import REFUSALS, LearnerSession
 from bus.transport import Bus
-from deploy.plan_channel import DelayedSender, PlanBook, PlanDrop, cap_steps, played
+from common.errors import AdaptiveHError
+from deploy.config import StackConfig
+from deploy.plan_channel import PlanBook, PlanDrop, played
 from learner.plans import Executed, Plan, opening
+from robot_io.step_cap import cap_step_length
 from tasks.reach import (
     TRACKING,
     ArmTracking,
@@ -66,11 +69,11 @@ MAX_REFUSED_IN_A_ROW = 64  # more than a forgery inside robot.max_chunk_seq_gap 
 MAX_SIGNED_REFUSED = 3  # signed chunks that timed out refused while the arm runs: a wrong token
 
 
-class EnvStopped(RuntimeError):
+class EnvStopped(AdaptiveHError, RuntimeError):
     """The node is shutting down while ``step`` waited for a held robot."""
 
 
-class TakenOver(RuntimeError):
+class TakenOver(AdaptiveHError, RuntimeError):
     """robot-io obeys another learner session now: this one's chunks are refused as foreign."""
 
 
@@ -79,8 +82,8 @@ Planner = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
 
 @dataclass(frozen=True)
 class EnvSettings:
-    """What the env needs to know about the robot and the task: ``deploy.learner_node.env_settings``
-    fills it from the stack config's ``robot:`` and ``learner:`` sections (no defaults copied here)."""
+    """What the env needs to know about the robot and the task: :func:`env_settings` fills it from the
+    stack config's ``robot:`` and ``learner:`` sections (no defaults copied here)."""
 
     workspace_lo: tuple[float, ...]
     workspace_hi: tuple[float, ...]
@@ -93,12 +96,35 @@ class EnvSettings:
     target_hi: tuple[float, ...]
     target_speed_max: float
     step_timeout_s: float
-    execution: Literal["closed_loop", "plan"]
-    latency_ms: float  # the learner's thinking time made real: a chunk goes out this late
+    execution: Literal["closed_loop", "plan"]  # who steps the env: a learner's step(), or an actor's plans
+    latency_ms: float  # closed loop: the learner's thinking time made real, a chunk goes out this late
     reset_timeout_s: float = 30.0
     target_timeout_s: float = 0.5
     robot_model: str = "panda"  # robot.model: the arm a checkpoint records (learner.provenance)
     tracking: ArmTracking = TRACKING  # robot.tracking: how the arm follows a step (the plan model's)
+
+
+def env_settings(cfg: StackConfig) -> EnvSettings:
+    """The reach env over Zenoh: the robot's workspace, step and rate, and the learner's task settings."""
+    lc = cfg.learner
+    return EnvSettings(
+        workspace_lo=cfg.robot.workspace.lo,
+        workspace_hi=cfg.robot.workspace.hi,
+        max_step_m=cfg.robot.max_step_m,
+        control_rate_hz=cfg.robot.control_rate_hz,
+        max_episode_steps=lc.max_episode_steps,
+        chunk_len=lc.chunk_len,
+        target_topic=lc.target_topic,
+        target_lo=lc.target_box[0],
+        target_hi=lc.target_box[1],
+        target_speed_max=lc.target_speed_max,
+        step_timeout_s=lc.step_timeout_s,
+        target_timeout_s=lc.target_timeout_s,
+        execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
+        latency_ms=lc.latency_ms if lc.execution == "closed_loop" else 0.0,  # actor: snapshots arrive late
+        robot_model=cfg.robot.model,
+        tracking=TRACKING if cfg.robot.tracking is None else ArmTracking(**cfg.robot.tracking.model_dump()),
+    )
 
 
 def _seen_at(target: m.Target | None) -> float:
@@ -180,16 +206,15 @@ class ZenohReachEnv(ReachSpec):
         self._target: m.Target | None = None
         self._target_lost = False
         self.target_waits = 0  # target outages waited out
-        self.outage_ticks = 0  # plan mode: robot ticks passed over while the target was lost
+        self.outage_ticks = 0  # an actor's: robot ticks passed over while the target was lost
         self.chunk_seq = -1  # the last chunk sent
         self.global_step = 0
         self._steps = 0
         self.dropped_total = 0
         self.preemptions = 0
         self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
-        # The robot's ticks not yet read (plan mode: by ``advance``, with the target then known; closed
-        # loop: since the last chunk went out, bounded while no step waits), the plans sent, and the
-        # sender that delays them by the learner's latency.
+        # The robot's ticks not yet read (an actor's: by ``advance``, with the target then known; closed
+        # loop: since the last chunk went out, bounded while no step waits), and the plans sent.
         self.plan_mode = settings.execution == "plan"
         self._ticks: deque[tuple[m.RobotState, m.Target | None]] = deque(
             maxlen=None if self.plan_mode else 1024
@@ -199,8 +224,6 @@ class ZenohReachEnv(ReachSpec):
         self.suspended_ticks = 0
         self.book = PlanBook()
         self.on_plan_dropped: Callable[[PlanDrop], None] | None = None
-        delay = settings.latency_ms / 1000.0
-        self._sender = DelayedSender(self._publish_plan, delay, self.stop) if delay > 0 else None
         # This learner's session: its chunks are numbered from 0 and obeyed once ``reset`` has taken over.
         self.session = LearnerSession(bus)
         self.refused: dict[str, int] = {}  # own chunks robot-io refused, by verdict
@@ -360,8 +383,6 @@ class ZenohReachEnv(ReachSpec):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Home pose via the ``reset`` queryable; a seed gives the (simulated) target a new motion."""
         gym.Env.reset(self, seed=seed)  # seeds np_random (ReachSpec.reset refuses: it has no robot)
-        if self._sender is not None:
-            self._sender.cancel()  # a late plan of the last episode must not play in this one
         deadline = time.monotonic() + self.settings.reset_timeout_s
         while True:
             if self.stop.is_set():
@@ -414,7 +435,7 @@ class ZenohReachEnv(ReachSpec):
         if n <= 0:
             return action[None, :]
         tail = np.zeros((n, 3)) if self.planner is None else np.asarray(self.planner(obs, action, n))
-        return cap_steps(np.vstack([action[None, :], tail.reshape(n, 3)]), self.settings.max_step_m)
+        return cap_step_length(np.vstack([action[None, :], tail.reshape(n, 3)]), self.settings.max_step_m)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         action = np.clip(
@@ -504,14 +525,11 @@ class ZenohReachEnv(ReachSpec):
 
     # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
     def send(self, plan: Plan) -> None:
-        """Publish ``plan`` as one chunk, now or ``latency_ms`` later; never blocks the learner."""
-        if self._sender is None:
-            self._publish_plan(plan)
-        else:
-            self._sender.submit(plan)
+        """Publish ``plan`` as one chunk; never blocks."""
+        self._publish_plan(plan)
 
     def _publish_plan(self, plan: Plan) -> int:
-        actions = cap_steps(plan.actions, self.settings.max_step_m)
+        actions = cap_step_length(np.reshape(plan.actions, (-1, 3)), self.settings.max_step_m)
         predicted = np.asarray(plan.predicted, float)[1 : len(actions) + 1, 0:3]
         msg = m.ActionChunk(
             actions=actions.ravel().tolist(),
@@ -522,31 +540,11 @@ class ZenohReachEnv(ReachSpec):
         self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions)
         return self.chunk_seq
 
-    def queued(self, n: int) -> np.ndarray:
-        """The next ``n`` (or fewer) actions the robot will play if no newer plan arrives, as of the last
-        tick returned: the rest of the chunk it was playing, or all of a plan published since (which
-        preempts it on arrival). A plan still waiting out the latency is not queued yet."""
-        with self._cond:
-            last = self._last_state
-        newest = self.book.newest()
-        rest = np.zeros((0, 3))
-        if last is not None and not self.session.mine(last):
-            last = None  # the arm played no chunk of ours yet (a reset's state from before the takeover)
-        if newest is not None and (last is None or newest.seq > last.chunk_seq):
-            rest = newest.actions
-        elif last is not None and last.queue_len:
-            sent = self.book.get(last.chunk_seq)
-            if sent is not None and sent.stamp == last.chunk_stamp:
-                rest = sent.actions[len(sent.actions) - last.queue_len :]
-        return rest[: max(n, 0)].copy()
-
     def _hold_for_target(self) -> None:
-        """Plan mode, the target lost or stale: a plan made for a target we cannot see must not play on.
-        A one-action plan that stays put preempts it (robot-io's watchdog then holds the arm), plans
-        waiting out the latency are dropped, the learner waits for a fresh fix, and the ticks of the
-        outage are passed over: nothing is learned from them (the next tick closes the segment)."""
-        if self._sender is not None:
-            self._sender.cancel()
+        """The target lost or stale: a plan made for a target we cannot see must not play on. A
+        one-action plan that stays put preempts it (robot-io's watchdog then holds the arm), the actor
+        waits for a fresh fix, and the ticks of the outage are passed over: nothing is learned from them
+        (the next tick closes the segment)."""
         obs, _, _ = self._observe()
         stay = np.zeros((1, 3))
         newest = self.book.newest()

@@ -47,9 +47,12 @@ class Actor:
         self.rng = np.random.default_rng([seed, 2])
         self._next_plan_id = 0
 
-    def load(self, snap: PolicySnapshot) -> None:
-        """Take ``snap`` (checked first: a bad one raises ``SnapshotError`` and the old policy stays)."""
+    def check(self, snap: PolicySnapshot) -> None:
+        """Raise ``SnapshotError`` unless ``snap`` fits this actor (dimensions, budget, finite values)."""
         snap.check(self.state_dim, self.action_dim, self.max_centers)
+
+    def load(self, snap: PolicySnapshot) -> None:
+        """Take ``snap``, which passed :meth:`check` where it arrived."""
         self.policy.f.dictionary.centers = snap.policy_centers
         self.policy.f.weights = snap.policy_weights
         self.field.dictionary.centers = snap.field_centers

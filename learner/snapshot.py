@@ -12,8 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.errors import AdaptiveHError
 
-class SnapshotError(ValueError):
+
+class SnapshotError(AdaptiveHError, ValueError):
     """A snapshot that does not fit the actor's policy (its text says which part)."""
 
 

@@ -25,8 +25,6 @@ from typing import Any
 
 import zenoh
 import zenoh.ext
-from google.protobuf import descriptor_pb2
-from google.protobuf.descriptor import FileDescriptor
 from mcap.exceptions import McapError
 from mcap.records import Channel as McapChannel
 from mcap.records import Message as McapMessage
@@ -37,6 +35,7 @@ from mcap.writer import Writer
 from bus import messages as m
 from bus.signing import KeyedVerifiers
 from bus.transport import undeclare_quietly
+from common.errors import AdaptiveHError
 from monitor.foxglove.derive import Derived, Deriver, is_derived
 
 log = logging.getLogger(__name__)
@@ -50,25 +49,8 @@ MAX_OTHER_KEYS = 256  # keys outside the schema with their own channel; a strang
 OTHER_KEYS = "_other_keys"
 
 
-class RecordingError(ValueError):
+class RecordingError(AdaptiveHError, ValueError):
     """A file that is not a recording this build can read."""
-
-
-def file_descriptor_set(msg_type: type[m.Message]) -> bytes:
-    """The serialized ``FileDescriptorSet`` of ``msg_type``'s file and everything it imports."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: FileDescriptor) -> None:
-        if fd.name in seen:
-            return
-        for dep in fd.dependencies:
-            add(dep)
-        seen.add(fd.name)
-        fd.CopyToProto(fds.file.add())
-
-    add(msg_type.DESCRIPTOR.file)
-    return fds.SerializeToString()
 
 
 class Recorder:
@@ -230,7 +212,7 @@ class Recorder:
             name = msg_type.DESCRIPTOR.full_name
             schema = self._schemas.get(name)
             if schema is None:
-                schema = self._writer.register_schema(name, "protobuf", file_descriptor_set(msg_type))
+                schema = self._writer.register_schema(name, "protobuf", m.file_descriptor_set(msg_type))
                 self._schemas[name] = schema
             channel = self._channels[key] = self._writer.register_channel(key, "protobuf", schema)
         return channel

@@ -35,7 +35,7 @@ from bus.learner_session import REFUSALS
 from bus.node import Node
 from bus.transport import Bus
 from common.config import Section
-from common.throttle import ReportThrottle
+from common.throttle import Throttle
 from monitor.view_limits import ViewLimits
 
 log = logging.getLogger(__name__)
@@ -294,7 +294,7 @@ class MonitorServer(Node):
         self.state = MonitorState(bus, config.history, limits)
         self._pub_control = bus.publisher(m.CONTROL)
         self.controls: deque[str] = deque(maxlen=256)  # the newest requests obeyed (a flood stays small)
-        self._reports, self._reports_lock = ReportThrottle(), threading.Lock()
+        self._reports = Throttle("like it")
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -375,8 +375,7 @@ class MonitorServer(Node):
 
     def _report(self, reason: str, text: str) -> None:
         """A log line per reason a minute at most: anyone who reaches the page can repeat a request."""
-        with self._reports_lock:
-            line = self._reports.report("api/control", reason, text)
+        line = self._reports.report(text, reason)
         if line is not None:
             log.warning("%s", line)
 

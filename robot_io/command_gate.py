@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from typing import Literal
 
+from common.errors import AdaptiveHError
+
 Verdict = Literal["accepted", "held", "bad_plan", "stale", "foreign", "seq_jump", "forged"]
 """What became of a chunk: queued; or refused whole because the arm is held, it breaks the plan rules,
 it is not newer than the session's last chunk, it is not from the obeyed session, it jumps ahead, or
@@ -22,7 +24,7 @@ it is not newer than the session's last chunk, it is not from the obeyed session
 GATE_REFUSALS: tuple[Verdict, ...] = ("stale", "foreign", "seq_jump")
 
 
-class TakeoverRefused(Exception):
+class TakeoverRefused(AdaptiveHError):
     """A session asked to take over the arm without a live liveliness token (or without an id)."""
 
 

@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
 from common.config import Section, Vec3, check_box
+from robot_io.backends.franky_config import FrankaConfig, Joints
+from robot_io.backends.pybullet_config import MockArmConfig
 from robot_io.description import MODELS
 
-Joints = Annotated[tuple[float, ...], Field(min_length=7, max_length=7)]
-"""One number per arm joint."""
-Wrench = Annotated[tuple[float, ...], Field(min_length=6, max_length=6)]
-"""Force (x, y, z) then torque (x, y, z)."""
 MotionPreset = Literal["static", "slow", "fast", "erratic"]
 """The PyBullet backend's target motions, declared here so reading a config never loads sim; sim's
 ``MotionPreset`` names the same presets (tests/robot_io/test_panda_description.py holds them equal)."""
@@ -47,45 +45,6 @@ class IKConfig(Section):
     iterations: int = Field(1, ge=1)
 
 
-class FrankaConfig(Section):
-    """The franky connection, how commands become motions, collision behaviour and fault recovery.
-
-    ``stream`` picks how each control period's IK target reaches the arm (measured in
-    bench/franka_bench.py): ``velocity`` sends a jerk-limited waypoint reached in one period *at the
-    velocity the IK implies*, so consecutive targets blend into one continuous motion; ``rest`` sends a
-    plain waypoint that the arm approaches to a stop (the stop-and-go that streaming reports describe).
-    """
-
-    ip: str = "172.16.0.2"  # the FCI address (franky-sim: the loopback address it prints)
-    realtime: Literal["enforce", "ignore"] = "ignore"  # libfranka RealtimeConfig (enforce on a PREEMPT_RT PC)
-    stream: Literal["velocity", "rest"] = "velocity"
-    # franky's relative dynamics factor (velocity, acceleration, jerk) for the streamed motions; the IK
-    # already bounds joint speed by robot.velocity_scale.
-    dynamics: tuple[float, float, float] = (1.0, 0.3, 0.3)
-    home_dynamics: float = Field(0.15, gt=0, le=1)  # reset's point-to-point move home
-    # mlockall at connect (robot_io/backends/memory_lock.py): no page fault stalls the 1 kHz loop. It needs
-    # CAP_IPC_LOCK or `ulimit -l unlimited`; refused: fatal under realtime: enforce, else a warning.
-    lock_memory: bool = False
-    lower_torque_thresholds: Joints = (20.0,) * 7
-    upper_torque_thresholds: Joints = (40.0,) * 7
-    lower_force_thresholds: Wrench = (10.0,) * 6
-    upper_force_thresholds: Wrench = (20.0,) * 6
-    joint_impedance: Joints = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)
-    # Faults recovered without the operator (libfranka error names, or ``connection_lost``), at most
-    # ``auto_recover_limit`` times until the operator's next release; anything else holds for a release.
-    auto_recover: tuple[str, ...] = ("communication_constraints_violation",)
-    auto_recover_limit: int = Field(3, ge=0)
-    # franky-sim only: robot-io scripts a target (robot.target_motion) and publishes it on sim/target_truth,
-    # since no camera sees the simulator's world.
-    simulated_target: bool = False
-
-    @model_validator(mode="after")
-    def _dynamics_in_range(self) -> FrankaConfig:
-        if not all(0 < f <= 1 for f in self.dynamics):
-            raise ValueError(f"dynamics {self.dynamics}: each factor must be in (0, 1]")
-        return self
-
-
 class TrackingConfig(Section):
     """How this arm's commanded TCP follows a displacement step within one control period, for the reach
     plan model (``tasks.reach.ArmTracking``): |moved| = step_m * tanh(gain * |step| / step_m), and the
@@ -95,14 +54,6 @@ class TrackingConfig(Section):
     gain: float = Field(gt=0, le=2)
     step_m: float = Field(gt=0, le=0.1)
     velocity_ratio: float = Field(ge=0, le=2)
-
-
-class MockArmConfig(Section):
-    """The PyBullet mock arm's own dynamics, for the reality-gap overlays (configs/gaps/): a real arm
-    tracks with its own gains and its commands take effect later than the mock's."""
-
-    position_gain: float = Field(0.3, gt=0, le=1)  # PyBullet's servo gain: lower tracks slower
-    actuation_delay_ms: float = Field(0.0, ge=0, le=500)  # each joint command takes effect this late
 
 
 class RobotConfig(Section):

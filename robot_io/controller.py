@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from common.errors import AdaptiveHError
+from common.throttle import EVENT_EVERY_S, Throttle
 from robot_io.action_queue import UNLABELLED, ActionQueue, ChunkLabel, ChunkReport
 from robot_io.backends import RobotBackend, make_backend
 from robot_io.command_gate import CommandGate, TakeoverRefused, Verdict
@@ -23,13 +25,14 @@ from robot_io.description import RobotDescription
 from robot_io.ik import DifferentialIK
 from robot_io.kinematics import Kinematics
 from robot_io.recovery import RecoveryPolicy
-from robot_io.safety import EventThrottle, Safety, SafetyRecord
+from robot_io.safety import Safety, SafetyRecord
+from robot_io.step_cap import cap_step_length
 
 UNREACHABLE_M = 0.01  # IK ending this far from its goal with no progress means the goal is out of reach
 STEP_TOLERANCE = 1e-9  # relative: a step capped to exactly max_step_m by the sender is not "above" it
 
 
-class ArmHeld(RuntimeError):
+class ArmHeld(AdaptiveHError, RuntimeError):
     """A motion was asked for (a reset) while the arm is e-stopped, paused, faulted or held."""
 
 
@@ -69,7 +72,7 @@ class RobotController:
         self.home = np.asarray(config.home_q, float)
         self.queue = ActionQueue()
         self.gate = CommandGate(config.max_chunk_seq_gap)
-        self._refusals = EventThrottle("refused")
+        self._refusals = Throttle("refused", EVENT_EVERY_S)
         self.safety = Safety(config.workspace, config.watchdog_timeout_s)
         self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
@@ -163,7 +166,7 @@ class RobotController:
             self._report_refusal(detail, now)
 
     def _report_refusal(self, detail: str, now: float) -> None:
-        shown = self._refusals.detail(detail, now)
+        shown = self._refusals.report(detail, now=now)
         if shown is not None:
             self.safety.report("foreign_command", shown)
 
@@ -259,8 +262,7 @@ class RobotController:
             self._pending.clear()
         self._handle_fault(released)
         with self._lock:
-            held_back = self._refusals.overdue(now)
-            if held_back is not None:
+            for held_back in self._refusals.overdue(now):
                 self.safety.report("foreign_command", f"commands ignored: {held_back}")
             self.safety.check_watchdog(now, queue_empty=len(self.queue) == 0)
             if self.safety.may_move:
@@ -372,10 +374,7 @@ class RobotController:
 
     def _execute(self, action: np.ndarray) -> np.ndarray:
         """Displace the end-effector goal by ``action`` (≤ max_step_m), clip, solve IK, check, send."""
-        action = np.asarray(action, float).reshape(3)
-        norm = float(np.linalg.norm(action))
-        if norm > self.config.max_step_m:
-            action = action * (self.config.max_step_m / norm)
+        action = cap_step_length(np.asarray(action, float).reshape(3), self.config.max_step_m)
         js = self.backend.read_state()
         q0, ee0, ee_measured = self._anchor(js.q, js.q_cmd)
         goal = self._goal(ee0, ee_measured, action)

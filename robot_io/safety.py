@@ -7,7 +7,6 @@ hold, ``resume`` clears a pause, and only ``release`` clears an e-stop. Every ch
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,37 +23,6 @@ class SafetyRecord:
     kind: str
     detail: str
     held: bool
-
-
-class EventThrottle:
-    """One event per window: a flood of bad input must not flood the operator (or the recording); the
-    next event let through says how many were held back meanwhile."""
-
-    def __init__(self, what: str, every_s: float = 1.0) -> None:
-        self.what, self.every_s = what, every_s
-        self.last, self.held = -np.inf, 0
-        self._lock = threading.Lock()  # bad input arrives on the bus's threads, the drain on a tick's
-
-    def detail(self, detail: str, now: float) -> str | None:
-        """``detail`` (with the count held back) to report now, or None to hold this one back."""
-        with self._lock:
-            if now - self.last < self.every_s:
-                self.held += 1
-                return None
-            if self.held:
-                detail += f" (and {self.held} more {self.what} since the last report)"
-            self.last, self.held = now, 0
-            return detail
-
-    def overdue(self, now: float) -> str | None:
-        """The count held back, once its window has passed with nothing let through: a short burst of
-        bad input is reported even when nothing follows it."""
-        with self._lock:
-            if not self.held or now - self.last < self.every_s:
-                return None
-            detail = f"{self.held} more {self.what} since the last report"
-            self.last, self.held = now, 0
-            return detail
 
 
 class Safety:

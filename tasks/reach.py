@@ -21,6 +21,7 @@ import numpy as np
 
 from learner.provenance import ArmRecord
 from robot_io.description import robot_model
+from robot_io.step_cap import cap_step_length
 
 SUCCESS_M = 0.05
 MAX_STEP_M = 0.05
@@ -114,9 +115,8 @@ def tracked_step(
     """Where the end effector goes in one period when told ``action``: clipped per axis to the action
     box, capped at ``max_step`` as the robot caps it, then shortened as the arm tracks it (above)."""
     action = np.clip(np.asarray(action, float), -max_step, max_step)
-    norm = float(np.linalg.norm(action))
-    if norm > max_step:
-        action, norm = action * (max_step / norm), max_step
+    norm = min(float(np.linalg.norm(action)), max_step)
+    action = cap_step_length(action, max_step)
     if norm == 0.0:
         return action
     if tracking.step_m is None:

@@ -16,8 +16,8 @@ import pytest
 import yaml
 from loopback import free_endpoint, unique_name
 
-from deploy.commands import TOKEN_ENV
 from deploy.config import compose_stack_yaml
+from deploy.part_env import TOKEN_ENV
 from deploy.stack import PART_COMMANDS, running_parts
 
 PARTS = tuple(PART_COMMANDS.values())  # what ``adaptiveh up`` runs on configs/sim.yaml

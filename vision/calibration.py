@@ -20,11 +20,13 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from vision.config import CalibrationConfig, Intrinsics
+from common.errors import AdaptiveHError
+from vision.camera_model import Intrinsics
+from vision.config import CalibrationConfig
 from vision.extrinsics import invert, make_transform
 
 
-class CalibrationError(RuntimeError):
+class CalibrationError(AdaptiveHError, RuntimeError):
     """Not enough usable views, or a degenerate set of arm poses."""
 
 

@@ -17,8 +17,9 @@ import pybullet as pb
 from scipy.spatial.transform import Rotation
 
 from vision.calibration import BoardView, CharucoBoard
+from vision.camera_model import Intrinsics
 from vision.cameras.sim import SimRGBDCamera
-from vision.config import Intrinsics, VisionConfig
+from vision.config import VisionConfig
 from vision.extrinsics import make_transform, matrix_to_pose, pose_to_matrix
 
 

@@ -6,116 +6,18 @@ message naming the key path, not mid-run. Lists from YAML become tuples.
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Literal
 
-import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from common.config import Section, Vec3
+from common.config import Section
+from vision.camera_model import Intrinsics, Pose
+from vision.cameras.realsense_config import RealSenseConfig
+from vision.cameras.sim_config import SimCameraConfig
 
 Hue = Annotated[int, Field(ge=0, le=180)]  # OpenCV's H is 0..180
 Byte = Annotated[int, Field(ge=0, le=255)]
 HSVRange = tuple[Hue, Byte, Byte, Hue, Byte, Byte]  # (hmin, smin, vmin, hmax, smax, vmax)
-
-
-class Intrinsics(Section):
-    """Pinhole model in OpenCV convention: pixel (u, v) centre at integer coordinates, v down."""
-
-    width: int = Field(640, ge=8, le=8192)
-    height: int = Field(480, ge=8, le=8192)
-    fx: float = Field(615.0, gt=0)
-    fy: float = Field(615.0, gt=0)
-    cx: float = 319.5
-    cy: float = 239.5
-
-    @model_validator(mode="after")
-    def _principal_point_inside(self) -> Intrinsics:
-        if not (0 <= self.cx < self.width and 0 <= self.cy < self.height):
-            raise ValueError(
-                f"principal point ({self.cx}, {self.cy}) outside the {self.width}x{self.height} image"
-            )
-        return self
-
-    def matrix(self) -> np.ndarray:
-        """The 3x3 camera matrix K."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def scaled(self, width: int, height: int) -> Intrinsics:
-        """The same lens at another resolution (pixel centres kept consistent)."""
-        sx, sy = width / self.width, height / self.height
-        return Intrinsics(
-            width=width,
-            height=height,
-            fx=self.fx * sx,
-            fy=self.fy * sy,
-            cx=(self.cx + 0.5) * sx - 0.5,
-            cy=(self.cy + 0.5) * sy - 0.5,
-        )
-
-
-class Pose(Section):
-    """A rigid transform as position (m) and unit quaternion (x, y, z, w).
-
-    For extrinsics it is camera-to-base: it maps points in the camera frame (OpenCV: x right,
-    y down, z along the optical axis) to the robot base frame.
-    """
-
-    position: Vec3 = (0.0, 0.0, 0.0)
-    quaternion: Annotated[tuple[float, ...], Field(min_length=4, max_length=4)] = (0.0, 0.0, 0.0, 1.0)
-
-    @field_validator("quaternion")
-    @classmethod
-    def _unit(cls, q: tuple[float, ...]) -> tuple[float, ...]:
-        """Within 1e-3 of unit norm (rounded YAML values), then normalised exactly."""
-        norm = math.hypot(*q)  # no overflow on a huge component: the error names its norm, not inf
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"quaternion (x, y, z, w) must have unit norm, got norm {norm:.6g}")
-        return tuple(float(x) / norm for x in q)
-
-
-class DepthNoise(Section):
-    """Sim depth noise: sigma = base + per_m2 * z^2 (stereo error grows with distance squared)."""
-
-    base_sigma: float = Field(0.0005, ge=0)
-    sigma_per_m2: float = Field(0.0015, ge=0)
-    dropout: float = Field(0.01, ge=0, lt=1)  # fraction of pixels with no depth (reported as 0)
-    enabled: bool = True
-
-
-class SimCameraConfig(Section):
-    """The simulated camera: where it physically is (``pose``, camera-to-base) and its depth range.
-
-    ``pose`` is the ground truth used for rendering; the pipeline uses ``VisionConfig.extrinsics``
-    (the calibrated estimate), so calibration can be exercised in simulation.
-    """
-
-    pose: Pose | None = None  # None: the same as the calibrated extrinsics
-    # mujoco: MuJoCo's OpenGL renderer (MUJOCO_GL egl or osmesa); tiny: PyBullet's TinyRenderer, several
-    # times slower, and what the camera falls back to, with a warning, when no OpenGL context opens.
-    renderer: Literal["mujoco", "tiny"] = "mujoco"
-    near: float = Field(0.05, gt=0)
-    far: float = 4.0
-    noise: DepthNoise = DepthNoise()
-    seed: int | None = 0
-
-    @model_validator(mode="after")
-    def _near_below_far(self) -> SimCameraConfig:
-        if not self.near < self.far:
-            raise ValueError(f"need 0 < near < far, got near={self.near}, far={self.far}")
-        return self
-
-
-class RealSenseConfig(Section):
-    """A RealSense device: colour and depth streams at one size, depth aligned to colour."""
-
-    serial: str = ""  # empty: the first device found
-    width: int = Field(640, gt=0)
-    height: int = Field(480, gt=0)
-    fps: Literal[6, 15, 30, 60, 90] = 30
-    timeout_ms: int = Field(1000, gt=0)
-    max_timeouts: int = Field(3, ge=1)  # consecutive frame timeouts before a reconnect (hardware reset)
-    reconnect_wait_s: float = Field(3.0, ge=0)
 
 
 class DetectionConfig(Section):

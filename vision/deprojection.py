@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vision.config import Intrinsics
+from vision.camera_model import Intrinsics
 
 
 def deproject(k: Intrinsics, u: float, v: float, depth: float) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vision.config import Pose
+from vision.camera_model import Pose
 
 
 def pose_to_matrix(pose: Pose) -> np.ndarray:

@@ -6,9 +6,10 @@ The CLI discovers the modules here, so adding a command never edits a shared fil
 import argparse
 import logging
 import os
-import signal
 import sys
 from pathlib import Path
+
+from deploy.part_env import TOKEN_ENV
 
 LOG_FORMAT = "%(asctime)s %(name)s %(levelname)s %(message)s"
 
@@ -25,10 +26,6 @@ def add_part_arguments(parser: argparse.ArgumentParser, sections: str) -> None:
 def setup_logging(level: str) -> None:
     """One log format for every process of the stack (their logs end up side by side)."""
     logging.basicConfig(level=level.upper(), format=LOG_FORMAT)
-
-
-SUPERVISOR_ENV = "ADAPTIVEH_SUPERVISOR_PID"
-TOKEN_ENV = "ADAPTIVEH_TOKEN"  # the operator token reaches a part through its environment, never argv
 
 
 def add_token_argument(parser: argparse.ArgumentParser) -> None:
@@ -93,20 +90,3 @@ TOKEN_HELP = (
     "~/.cache/adaptiveh/) whose path is printed and which is removed on exit, so no log holds it. "
     "E-STOP needs no token."
 )
-
-
-def die_with_supervisor() -> None:
-    """A part started by ``adaptiveh up`` gets SIGTERM when the supervisor dies, even by SIGKILL.
-
-    Without this, a killed supervisor left robot-io driving the arm and the learner sending chunks.
-    Linux only (prctl); elsewhere the part keeps running as before.
-    """
-    parent = os.environ.pop(SUPERVISOR_ENV, None)  # for this process only, not for its own children
-    if not parent or not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    PR_SET_PDEATHSIG = 1
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
-    if os.getppid() != int(parent):  # the supervisor died before prctl took effect
-        sys.exit(f"adaptiveh: the supervisor (pid {parent}) is gone; not starting")

@@ -8,7 +8,8 @@ import logging
 import signal
 import sys
 
-from deploy.commands import TOKEN_ENV, add_token_argument, operator_token, setup_logging
+from deploy.commands import add_token_argument, operator_token, setup_logging
+from deploy.part_env import TOKEN_ENV
 
 TOKEN_NOTE = (
     "A random operator token is printed on this terminal, and nowhere else: the parts' logs "

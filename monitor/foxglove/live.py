@@ -24,7 +24,6 @@ import zenoh
 from bus import messages as m
 from bus.signing import KeyedVerifiers
 from monitor.foxglove.derive import ROBOT, Derived, Deriver, SceneSetup
-from monitor.recording import file_descriptor_set
 from monitor.view_limits import ViewLimits
 
 log = logging.getLogger(__name__)
@@ -95,7 +94,7 @@ class FoxgloveLive:
         channel = self._channels.get(key)
         if channel is None:
             schema = foxglove.Schema(
-                name=msg_type.DESCRIPTOR.full_name, encoding="protobuf", data=file_descriptor_set(msg_type)
+                name=msg_type.DESCRIPTOR.full_name, encoding="protobuf", data=m.file_descriptor_set(msg_type)
             )
             channel = foxglove.Channel(key, schema=schema, message_encoding="protobuf", context=self.context)
             self._channels[key] = channel

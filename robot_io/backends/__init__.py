@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from robot_io.backends.protocol import Fault, JointState, RobotBackend
-from robot_io.config import RobotConfig
+
+if TYPE_CHECKING:
+    from robot_io.config import RobotConfig
 
 
 def make_backend(config: RobotConfig, world: Any = None) -> RobotBackend:

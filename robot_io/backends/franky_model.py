@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from common.errors import AdaptiveHError
 from robot_io.description import RobotDescription
 
 # robot server version -> first libfranka release that speaks it (franky doc/compatibility.json)
@@ -47,7 +48,7 @@ CHECK_CONFIGURATIONS = np.array(
 )
 
 
-class ModelMismatch(RuntimeError):
+class ModelMismatch(AdaptiveHError, RuntimeError):
     """The connected arm is not the configured ``robot.model`` (or its kinematics differ from ours)."""
 
 

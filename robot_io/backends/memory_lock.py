@@ -12,6 +12,7 @@ import errno
 import os
 import resource
 
+from common.errors import AdaptiveHError
 from common.proc_status import status_field
 
 MCL_CURRENT = 1  # <sys/mman.h>: the pages mapped now
@@ -23,7 +24,7 @@ FIX = (
 )
 
 
-class MemoryLockError(RuntimeError):
+class MemoryLockError(AdaptiveHError, RuntimeError):
     """The OS refused, or would later refuse, to lock this process's memory."""
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import resource
 from pathlib import Path
 
+from robot_io.backends.franky_config import FrankaConfig
 from robot_io.backends.memory_lock import has_capability, memlock_allowed
-from robot_io.config import FrankaConfig
 
 CAP_SYS_NICE = 23  # <linux/capability.h>
 FIFO_PRIORITY = 99  # sched_get_priority_max(SCHED_FIFO): what libfranka asks for

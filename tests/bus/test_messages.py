@@ -113,8 +113,9 @@ def test_chunk_array_shape():
         m.ActionChunk(actions=[0.0] * 9, opened_by=m.ActionChunk.FIRST).SerializeToString()
     )
     assert m.action_array(chunk).shape == (3, 3)
-    with pytest.raises(m.MessageError, match="multiple of 3"):
-        m.action_array(m.ActionChunk(actions=[0.0] * 4))
+    four = m.ActionChunk(actions=[0.0] * 4, opened_by=m.ActionChunk.FIRST).SerializeToString()
+    with pytest.raises(m.MessageError, match="ActionChunk.actions: 4 values is not a multiple of 3"):
+        m.CMD_CHUNK.decode(four)
 
 
 def test_frame_images_check_sizes():

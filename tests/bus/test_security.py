@@ -28,8 +28,8 @@ from bus import messages as m
 from bus.security import IDENTITY_ENV
 from bus.transport import Bus, ZenohConfig, open_session
 from common.config import ConfigError
-from deploy.commands import TOKEN_ENV
 from deploy.config import compose_stack_yaml
+from deploy.part_env import TOKEN_ENV
 from deploy.stack import check
 from monitor.server import MonitorConfig, MonitorServer
 
@@ -283,8 +283,8 @@ def test_the_parts_run_through_the_secured_router_and_a_control_needs_the_token(
     cfg, _, join = bus
     monkeypatch.setenv(TOKEN_ENV, TOKEN)
     monkeypatch.delenv(IDENTITY_ENV, raising=False)
-    # The learner drives the arm itself here (plan execution), through the router under its identity.
-    learner = {**cfg["learner"], "steps": 60, "target_topic": "sim/target_truth", "execution": "plan"}
+    # The learner drives the arm itself here (closed loop), through the router under its identity.
+    learner = {**cfg["learner"], "steps": 60, "target_topic": "sim/target_truth", "execution": "closed_loop"}
     part = {**cfg, "learner": learner}
     part["learner"]["checkpoint_dir"] = str(tmp_path / "l")
     part.pop("vision")

@@ -120,6 +120,44 @@ def test_the_check_sees_an_import_cycle(tmp_path):
     assert _cycle(_module_graph(tmp_path, ["experiments"])) == []
 
 
+# deploy's processes (each a node of the bus, and the supervisor that starts them) and its command line:
+# what two of them share lives in a module beside them, never in one of them.
+NODES = (
+    "deploy.actor_node",
+    "deploy.learner_node",
+    "deploy.robot_io_node",
+    "deploy.vision_node",
+    "deploy.stack",
+)
+ENTRY_POINTS = ("deploy.cli", "deploy.commands")
+
+
+def _cross_node_imports(graph: dict[str, set[str]]) -> list[str]:
+    wrong = []
+    for node in NODES:
+        for target in sorted(graph.get(node, ())):
+            if target != node and (target in NODES or target.startswith(ENTRY_POINTS)):
+                wrong.append(f"{node} imports {target}")
+    return wrong
+
+
+def test_no_node_imports_another_node():
+    wrong = _cross_node_imports(_module_graph(ROOT, ["deploy"]))
+    assert not wrong, "a node importing another node or the CLI:\n" + "\n".join(wrong)
+
+
+def test_the_check_sees_a_node_importing_another(tmp_path):
+    (tmp_path / "deploy" / "commands").mkdir(parents=True)
+    (tmp_path / "deploy" / "learner_node.py").write_text("X = 1\n")
+    (tmp_path / "deploy" / "commands" / "__init__.py").write_text("Y = 1\n")
+    (tmp_path / "deploy" / "actor_node.py").write_text("from deploy.learner_node import X\n")
+    (tmp_path / "deploy" / "stack.py").write_text("def f():\n    from deploy.commands import Y\n")
+    assert _cross_node_imports(_module_graph(tmp_path, ["deploy"])) == [
+        "deploy.actor_node imports deploy.learner_node",
+        "deploy.stack imports deploy.commands",
+    ]
+
+
 def test_robot_io_for_a_real_arm_loads_no_simulator():
     """Loading the Franka config and robot-io's node pulls in neither PyBullet, gymnasium nor ``sim``."""
     code = (

@@ -32,8 +32,8 @@ from stack_helpers import running_part
 from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, open_session, wait_listening
-from deploy.commands import TOKEN_ENV
 from deploy.config import compose_stack_yaml
+from deploy.part_env import TOKEN_ENV
 
 STALE_POSITION = (0.5, 0.28, 0.3)  # where the stale fixes say the target is (the truth is elsewhere)
 

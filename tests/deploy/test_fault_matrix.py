@@ -231,7 +231,7 @@ def test_02_stopped_robot_io_resumes_without_a_jump(run: Run) -> None:
 def _still_playing_s(run: Run) -> float:
     """How long the arm may still move once the learner stops acting on a lost target: closed loop, the
     last chunk's tail; plan mode and the actor, the one-tick stay they send (deploy/zenoh_env.py)."""
-    plans = run.cfg["learner"].get("execution") in ("plan", "actor")
+    plans = run.cfg["learner"].get("execution") == "actor"
     ticks = 1 if plans else run.cfg["learner"]["chunk_len"]
     return ticks / run.cfg["robot"]["control_rate_hz"]
 

@@ -58,7 +58,7 @@ def test_killed_learner_holds_robot_and_resumes_from_checkpoint(tmp_path: Path, 
         target_topic="sim/target_truth",
         checkpoint_dir=str(ckdir),
         checkpoint_every=EVERY,
-        execution="plan",  # the learner drives the arm (the actor's learner: tests/deploy/test_actor_node.py)
+        execution="closed_loop",  # the learner drives the arm (an actor's: tests/deploy/test_actor_node.py)
     )
     assert EVERY % cfg["learner"]["max_episode_steps"] == 0
     path = tmp_path / "c.yaml"

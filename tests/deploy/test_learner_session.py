@@ -18,8 +18,7 @@ from bus_probe import send_chunk
 from bus import messages as m
 from bus.signing import authentic, mac_key
 from bus.transport import Bus, open_session
-from deploy.learner_node import env_settings
-from deploy.zenoh_env import ZenohReachEnv
+from deploy.zenoh_env import ZenohReachEnv, env_settings
 
 FORGED_STEP = [0.0, 0.05, 0.0]  # a 5 cm sideways step: it would show in the arm's path
 

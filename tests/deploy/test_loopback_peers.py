@@ -78,8 +78,8 @@ def test_parts_started_alone_reach_each_other(tmp_path: Path, endpoint: str):
     cfg["name"] = unique_name("alone")
     cfg["zenoh"]["hub"] = endpoint
     cfg["vision"]["rate_hz"] = 5.0
-    # The learner drives the arm itself here (plan execution): these are the parts a learner-side test needs.
-    cfg["learner"].update(steps=60, checkpoint_dir=str(tmp_path / "l"), execution="plan")
+    # The learner drives the arm itself here (closed loop): these are the parts a learner-side test needs.
+    cfg["learner"].update(steps=60, checkpoint_dir=str(tmp_path / "l"), execution="closed_loop")
     cfg["monitor"]["port"] = 0
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))

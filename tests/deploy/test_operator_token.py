@@ -31,9 +31,10 @@ from stack_helpers import parts_of, start_up, write_stack_config
 from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, ZenohConfig, open_session
-from deploy.commands import TOKEN_ENV, write_private
+from deploy.commands import write_private
 from deploy.commands.up import tell_token
 from deploy.config import load_stack_config
+from deploy.part_env import TOKEN_ENV
 from monitor.server import MonitorConfig, MonitorServer
 
 TOKEN = "operator-secret-0123"

@@ -10,7 +10,7 @@ import numpy as np
 from polling import wait_until
 
 from bus import messages as m
-from deploy.plan_channel import DelayedSender, PlanBook, cap_steps, played
+from deploy.plan_channel import DelayedSender, PlanBook, played
 from learner.plans import Plan
 
 
@@ -79,9 +79,3 @@ def test_played_names_the_plan_action_and_holds_otherwise():
     forged = m.RobotState(tick=7, played_chunk=seq, played_index=0, session=me, played_stamp=stamp + 1)
     assert played(forged, book, me)[:2] == (-1, -1)
     assert book.foreign_ticks == 3
-
-
-def test_cap_steps_caps_the_norm_and_keeps_the_direction():
-    capped = cap_steps(np.array([[0.05, 0.05, 0.05], [0.01, 0.0, 0.0]]), 0.05)
-    np.testing.assert_allclose(np.linalg.norm(capped, axis=1), [0.05, 0.01])
-    np.testing.assert_allclose(capped[0], [0.05 / np.sqrt(3)] * 3)

@@ -27,7 +27,7 @@ def test_two_routers_carry_a_run(tmp_path):
     cfg["name"] = unique_name("rt")
     cfg.pop("vision")
     cfg["learner"].update(
-        steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"), execution="plan"
+        steps=60, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"), execution="closed_loop"
     )  # a learner on another machine driving the arm through the routers
     robot_cfg, learner_cfg = tmp_path / "robot.yaml", tmp_path / "learner.yaml"
     robot_cfg.write_text(yaml.safe_dump({**cfg, "zenoh": {"mode": "client", "connect": [e1]}}))
@@ -57,7 +57,10 @@ def test_a_restarted_router_the_arm_holds_and_the_run_resumes(tmp_path):
     cfg.pop("vision")
     cfg["zenoh"] = {"mode": "client", "connect": [endpoint]}
     cfg["learner"].update(
-        steps=100000, target_topic="sim/target_truth", checkpoint_dir=str(tmp_path / "l"), execution="plan"
+        steps=100000,
+        target_topic="sim/target_truth",
+        checkpoint_dir=str(tmp_path / "l"),
+        execution="closed_loop",
     )
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(cfg))

@@ -12,7 +12,7 @@ import yaml
 
 from common.config import ConfigError
 from deploy.config import StackConfig, compose_stack_yaml, load_stack_config
-from deploy.learner_node import env_settings
+from deploy.zenoh_env import env_settings
 from learner.config import AGENT_CONFIGS
 from learner.registry import ALGOS
 
@@ -180,8 +180,7 @@ def test_config_show_prints_the_merged_config_or_names_the_bad_key(tmp_path):
 def test_the_plan_model_tracks_as_the_configured_arm_does():
     """``robot.tracking`` (an arm's measured tracking) is what the stack's plan model predicts with; the
     mock's constants where none is given."""
-    from deploy.learner_node import env_settings
-    from deploy.zenoh_env import ReachSpec
+    from deploy.zenoh_env import ReachSpec, env_settings
     from tasks.reach import TRACKING, ArmTracking, predict_reach
 
     obs, step = np.zeros(15), np.array([0.0, 0.04, 0.0])

@@ -21,8 +21,9 @@ from bus.transport import Bus, ZenohConfig, open_session
 from deploy.config import StackConfig
 from deploy.vision_node import SimFramePublisher, frame_from_message, frame_message
 from sim.panda_scene import PandaScene
+from vision.camera_model import Intrinsics
 from vision.cameras.protocol import Frame
-from vision.config import Intrinsics, VisionConfig
+from vision.config import VisionConfig
 from vision.extrinsics import look_at
 
 LOST_AFTER = 0.3

@@ -10,8 +10,7 @@ from loopback import unique_name
 
 from bus.transport import Bus, ZenohConfig, open_session
 from deploy.config import compose_stack_yaml, load_stack_config
-from deploy.learner_node import env_settings
-from deploy.zenoh_env import ZenohReachEnv
+from deploy.zenoh_env import ZenohReachEnv, env_settings
 from tasks.reach_env import NSReachEnv
 
 

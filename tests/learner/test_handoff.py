@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from deploy.config import load_stack_config
-from deploy.learner_node import env_settings
-from deploy.zenoh_env import ReachSpec
+from deploy.zenoh_env import ReachSpec, env_settings
 from learner.adaptiveh import AdaptiveH
 from learner.config import AdaptiveHConfig
 from learner.provenance import ArmRecord, HandoffMismatch, TrainedOn

@@ -1,5 +1,5 @@
-"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run in
-plan execution: retreat events arrive, plans show planned against executed, E-STOP holds the arm without
+"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run (the
+product's default: the actor's plans): retreat events arrive, plans show planned against executed, E-STOP holds the arm without
 a token, the token typed once survives a reload and never shows in the URL, release lets learning
 resume. Saves a screenshot."""
 
@@ -42,7 +42,7 @@ def _state(url: str) -> dict:
 def test_monitor_in_chromium(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    path, cfg = write_stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000, execution="plan")
+    path, cfg = write_stack_config(tmp_path, "mon", vision_rate_hz=5.0, steps=100000)
     up = subprocess.Popen(
         [sys.executable, "-m", "deploy.cli", "up", str(path)], stdout=subprocess.PIPE, text=True
     )

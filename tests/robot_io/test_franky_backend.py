@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from polling import wait_until
 
+from robot_io.backends.franky_config import FrankaConfig
 from robot_io.backends.protocol import Fault, JointState
-from robot_io.config import FrankaConfig, RobotConfig
+from robot_io.config import RobotConfig
 from robot_io.controller import RobotController
 
 HOST = f"127.0.{np.random.randint(1, 250)}.{np.random.randint(2, 250)}"

@@ -201,8 +201,9 @@ def test_04_lost_connection_holds_in_fault_and_release_recovers(arm):
 
 def test_05_a_config_naming_the_wrong_arm_is_refused():
     from robot_io.backends.franky_backend import FrankyBackend
+    from robot_io.backends.franky_config import FrankaConfig
     from robot_io.backends.franky_model import ModelMismatch
-    from robot_io.config import FrankaConfig, RobotConfig
+    from robot_io.config import RobotConfig
 
     other = HOST.rsplit(".", 1)[0] + ("." + str(int(HOST.rsplit(".", 1)[1]) % 250 + 1))
     with FrankySimServer(other):  # its own server: robot-io holds the first one's only connection

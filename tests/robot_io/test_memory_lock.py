@@ -20,7 +20,8 @@ BACKEND = """
 import logging, sys
 logging.basicConfig(level=logging.WARNING, stream=sys.stdout)
 from robot_io.backends.franky_backend import FrankyBackend
-from robot_io.config import FrankaConfig, RobotConfig
+from robot_io.backends.franky_config import FrankaConfig
+from robot_io.config import RobotConfig
 fc = FrankaConfig(ip="127.0.0.1", realtime=sys.argv[1], lock_memory=True)
 FrankyBackend(RobotConfig(backend="franka", model="fr3", franka=fc))
 """

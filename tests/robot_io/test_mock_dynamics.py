@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from robot_io.config import MockArmConfig, RobotConfig
+from robot_io.backends.pybullet_config import MockArmConfig
+from robot_io.config import RobotConfig
 from tasks.sim_world import robot_controller
 
 

@@ -4,10 +4,10 @@ safety mode and the watchdog do not change, and the next valid plan plays at onc
 import numpy as np
 import pytest
 
-from deploy.plan_channel import cap_steps
 from robot_io.action_queue import ChunkReport
 from robot_io.config import RobotConfig
 from robot_io.controller import RobotController
+from robot_io.step_cap import cap_step_length
 
 UP_Y = [0.0, 0.01, 0.0]
 SESSION = "the-learner"  # the one session the controller obeys here (robot_io.command_gate)
@@ -63,7 +63,7 @@ def test_bad_plan_is_refused_whole_and_the_arm_holds(controller, why):
 def test_a_step_capped_by_the_sender_is_accepted(controller):
     controller.obey(SESSION)
     controller.reset()
-    plan = cap_steps(np.array([[0.05, 0.05, 0.05], [0.0, 0.0, -0.05]]), controller.config.max_step_m)
+    plan = cap_step_length(np.array([[0.05, 0.05, 0.05], [0.0, 0.0, -0.05]]), controller.config.max_step_m)
     assert np.linalg.norm(plan, axis=1).max() == pytest.approx(controller.config.max_step_m)
     assert controller.push_chunk(SESSION, 1, plan, 10.0) == "accepted"
     played = [(r.state.played_chunk, r.state.played_index) for r in run(controller, 3)]

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
+from robot_io.backends.franky_config import FrankaConfig
 from robot_io.backends.realtime_host import host_report, realtime_kernel
-from robot_io.config import FrankaConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 REPORT = """
 import sys
 from robot_io.backends.realtime_host import host_report
-from robot_io.config import FrankaConfig
+from robot_io.backends.franky_config import FrankaConfig
 ok, lines = host_report(FrankaConfig(realtime=sys.argv[1], lock_memory=True))
 print(ok); print("\\n".join(lines))
 """

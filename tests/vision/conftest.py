@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from sim.panda_scene import PandaScene
-from vision.config import Intrinsics, VisionConfig
+from vision.camera_model import Intrinsics
+from vision.config import VisionConfig
 from vision.extrinsics import look_at
 
 # Where the camera stands in the tests and in configs/sim.yaml: in front of the robot, to its right,

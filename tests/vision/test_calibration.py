@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from deploy.cli import main
 from deploy.config import load_stack_config
 from vision.calibration import BoardView, CalibrationError, CharucoBoard, solve_eye_to_hand
-from vision.config import CalibrationConfig, Intrinsics
+from vision.camera_model import Intrinsics
+from vision.config import CalibrationConfig
 from vision.extrinsics import (
     invert,
     look_at,

@@ -8,7 +8,8 @@ import pytest
 
 from common.config import ConfigError, parse
 from deploy.config import load_stack_config
-from vision.config import Intrinsics, Pose, VisionConfig
+from vision.camera_model import Intrinsics, Pose
+from vision.config import VisionConfig
 
 
 @pytest.mark.parametrize(

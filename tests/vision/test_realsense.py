@@ -15,7 +15,7 @@ import pytest
 
 from vision.cameras.protocol import CameraError
 from vision.cameras.realsense import RealSenseCamera
-from vision.config import RealSenseConfig
+from vision.cameras.realsense_config import RealSenseConfig
 
 
 def make_fake_rs(serials: tuple[str, ...]):

@@ -26,10 +26,12 @@ except ImportError as exc:  # not installed, or installed without the library it
         allow_module_level=True,
     )
 
+from vision.camera_model import Intrinsics  # noqa: E402
 from vision.cameras.protocol import CameraError  # noqa: E402
 from vision.cameras.realsense import RealSenseCamera  # noqa: E402
+from vision.cameras.realsense_config import RealSenseConfig  # noqa: E402
 from vision.cameras.sim import SimRGBDCamera, camera_from_config  # noqa: E402
-from vision.config import Intrinsics, RealSenseConfig, VisionConfig  # noqa: E402
+from vision.config import VisionConfig  # noqa: E402
 from vision.extrinsics import look_at, make_transform, matrix_to_pose, pose_to_matrix  # noqa: E402
 from vision.pipeline import VisionPipeline  # noqa: E402
 

@@ -7,8 +7,9 @@ import pybullet as pb
 import pytest
 
 from sim.panda_scene import TARGET_HALF
+from vision.camera_model import Intrinsics
 from vision.cameras.sim import SimRGBDCamera, buffer_to_metres, camera_from_config
-from vision.config import DepthNoise, Intrinsics, SimCameraConfig
+from vision.cameras.sim_config import DepthNoise, SimCameraConfig
 from vision.deprojection import project
 from vision.extrinsics import apply, invert, look_at, pose_to_matrix
 

@@ -9,10 +9,12 @@ import pytest
 
 from sim.panda_scene import PandaScene
 from tasks.sim_world import replica_scene
+from vision.camera_model import Intrinsics
 from vision.cameras.protocol import CameraError
 from vision.cameras.sim import camera_from_config
+from vision.cameras.sim_config import DepthNoise, SimCameraConfig
 from vision.cameras.sim_mirror import MirrorSimCamera
-from vision.config import DepthNoise, Intrinsics, SimCameraConfig, VisionConfig
+from vision.config import VisionConfig
 from vision.extrinsics import look_at
 
 POSE = look_at((1.3, -0.6, 0.9), (0.5, 0.0, 0.28))

@@ -21,10 +21,11 @@ import mujoco
 import numpy as np
 import pybullet as pb
 
-from vision.config import Intrinsics
+from common.errors import AdaptiveHError
+from vision.camera_model import Intrinsics
 
 
-class RendererUnavailable(RuntimeError):
+class RendererUnavailable(AdaptiveHError, RuntimeError):
     """No OpenGL context could be made (no EGL/OSMesa library, no driver)."""
 
 

@@ -7,14 +7,15 @@ from typing import Protocol
 
 import numpy as np
 
-from vision.config import Intrinsics
+from common.errors import AdaptiveHError
+from vision.camera_model import Intrinsics
 
 
-class FrameError(ValueError):
+class FrameError(AdaptiveHError, ValueError):
     """A frame the pipeline cannot use (wrong shape, wrong type, no depth, NaN); the text says why."""
 
 
-class CameraError(RuntimeError):
+class CameraError(AdaptiveHError, RuntimeError):
     """The camera could not deliver a frame (timeout, disconnected); the text says why."""
 
 

@@ -35,8 +35,9 @@ from typing import Any
 
 import numpy as np
 
+from vision.camera_model import Intrinsics
 from vision.cameras.protocol import CameraError, Frame
-from vision.config import Intrinsics, RealSenseConfig
+from vision.cameras.realsense_config import RealSenseConfig
 
 
 def _import_pyrealsense2() -> ModuleType:

@@ -17,9 +17,11 @@ import time
 import numpy as np
 import pybullet as pb
 
+from vision.camera_model import Intrinsics, Pose
 from vision.cameras.mujoco_render import MujocoRenderer, RendererUnavailable
 from vision.cameras.protocol import CameraError, Frame
-from vision.config import DepthNoise, Intrinsics, Pose, SimCameraConfig, VisionConfig
+from vision.cameras.sim_config import DepthNoise, SimCameraConfig
+from vision.config import VisionConfig
 from vision.extrinsics import pose_to_matrix
 
 log = logging.getLogger(__name__)

@@ -23,9 +23,10 @@ from typing import Protocol
 
 import numpy as np
 
+from vision.camera_model import Intrinsics
 from vision.cameras.protocol import CameraError, Frame
 from vision.cameras.sim import camera_from_config
-from vision.config import Intrinsics, VisionConfig
+from vision.config import VisionConfig
 
 
 @dataclass(frozen=True)

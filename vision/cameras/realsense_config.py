@@ -1,0 +1,22 @@
+"""Configuration of a RealSense device (``vision.realsense``), beside its backend
+(``vision/cameras/realsense.py``)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from common.config import Section
+
+
+class RealSenseConfig(Section):
+    """A RealSense device: colour and depth streams at one size, depth aligned to colour."""
+
+    serial: str = ""  # empty: the first device found
+    width: int = Field(640, gt=0)
+    height: int = Field(480, gt=0)
+    fps: Literal[6, 15, 30, 60, 90] = 30
+    timeout_ms: int = Field(1000, gt=0)
+    max_timeouts: int = Field(3, ge=1)  # consecutive frame timeouts before a reconnect (hardware reset)
+    reconnect_wait_s: float = Field(3.0, ge=0)
