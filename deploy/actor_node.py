@@ -30,16 +30,11 @@ from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig
-from learner.plans import Executed, Plan, opening
+from learner.plans import Executed, Plan
+from learner.segments import Opening, SegmentEnd, opening, segment_end
 from learner.snapshot import PolicySnapshot, SnapshotError
 
 log = logging.getLogger(__name__)
-END = {
-    "open": m.Transition.OPEN,
-    "retreat": m.Transition.RETREAT,
-    "h_max": m.Transition.H_MAX,
-    "episode_end": m.Transition.EPISODE_END,
-}
 
 
 class ActorNode(Node):
@@ -160,7 +155,7 @@ class ActorNode(Node):
         episode = self.counts["episodes"]
         plan: Plan | None = None
         played = length = 0
-        opened_by = "first"
+        opened_by = Opening.FIRST
         tick = None  # of ``obs``: the plan model learns from consecutive ticks only (an outage skips some)
         seen = planned_from = info.get("tick")  # the tick of ``obs``; of the state the plan was made from
         while not self.stopping:
@@ -184,9 +179,9 @@ class ActorNode(Node):
             self._publish(episode, obs, step, stat, end, plan)
             self._report_held_back()
             self.counts["steps"] += 1
-            if end != "open":
+            if end != SegmentEnd.OPEN:
                 self.counts["segments"] += 1
-                self.counts["retreats"] += end == "retreat"
+                self.counts["retreats"] += end == SegmentEnd.RETREAT
                 opened_by = opening(end)
                 plan, played, length = None, 0, 0
             if step.terminated or step.truncated:
@@ -210,20 +205,20 @@ class ActorNode(Node):
             if before == tick - 1:
                 self.actor.anchor(plan, obs)
 
-    def _judge(self, plan: Plan | None, step: Executed, length: int, played: int) -> tuple[float | None, str]:
-        """(the retreat statistic, how the segment stands after ``step``): as ``AdaptiveH`` closes one."""
+    def _judge(
+        self, plan: Plan | None, step: Executed, length: int, played: int
+    ) -> tuple[float | None, SegmentEnd]:
+        """(the retreat statistic, how the segment stands after ``step``): by the rules ``AdaptiveH``
+        closes one in-process with (``learner.segments.segment_end``)."""
         stat = None
         if plan is not None and step.plan_id == plan.plan_id:
             stat = self.actor.statistic(step.index + 1, plan.predicted[step.index + 1], step.obs)
-        if self.actor.retreats(stat):
-            return stat, "retreat"
-        if length >= self.actor.segment_limit:
-            return stat, "h_max"
-        if step.terminated or step.truncated:
-            return stat, "episode_end"
-        if step.plan_id == -1 and played:
-            return stat, "h_max"  # the plan is gone (played out, or cleared by an e-stop): re-plan now
-        return stat, "open"
+        episode_over = step.terminated or step.truncated
+        plan_gone = step.plan_id == -1 and played > 0
+        end = segment_end(
+            self.actor.retreats(stat), length, self.actor.segment_limit, episode_over, plan_gone
+        )
+        return stat, end
 
     def _publish(
         self,
@@ -231,7 +226,7 @@ class ActorNode(Node):
         obs: np.ndarray,
         step: Executed,
         stat: float | None,
-        end: str,
+        end: SegmentEnd,
         plan: Plan | None,
     ) -> None:
         source = self._plans.get(step.plan_id)
@@ -252,7 +247,7 @@ class ActorNode(Node):
             success=bool(step.info.get("success", False)),
             distance=float(step.info.get("distance", 0.0)),
             predicted=np.asarray(predicted, float).tolist(),
-            end=END[end],
+            end=m.enum(m.Transition, "end", end),
             policy_version=max(self.actor.version, 0),
             target_age=float(step.info.get("target_age_s", 0.0)),
         )
@@ -261,7 +256,7 @@ class ActorNode(Node):
         self._pub_transition(msg)
 
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
-        if drop.by_opening == "retreat":
+        if drop.by_opening == Opening.RETREAT:
             self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped
 

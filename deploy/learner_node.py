@@ -39,6 +39,7 @@ from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
+from learner.segments import Opening
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
@@ -156,7 +157,7 @@ class LearnerNode(Node):
 
     def _on_plan_dropped(self, drop: PlanDrop) -> None:
         """A plan (closed loop: a step's chunk) made after a retreat preempted the rest of the one before."""
-        if drop.by_opening == "retreat":
+        if drop.by_opening == Opening.RETREAT:
             self.retreat_preemptions += 1
             self.retreat_dropped += drop.dropped
             self.retreat_dropped_moving += drop.moving

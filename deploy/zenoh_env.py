@@ -44,7 +44,8 @@ from bus.transport import Bus
 from common.errors import AdaptiveHError
 from deploy.config import StackConfig
 from deploy.plan_channel import PlanBook, PlanDrop, played
-from learner.plans import Executed, Plan, opening
+from learner.plans import Executed, Plan
+from learner.segments import Opening, opening
 from robot_io.step_cap import cap_step_length
 from tasks.reach import (
     TRACKING,
@@ -199,7 +200,7 @@ class ZenohReachEnv(ReachSpec):
         self.bus = bus
         self.planner = planner
         self.segment = 0  # closed loop: the segment the next chunk belongs to (``open_segment``)
-        self._opening = "first"  # closed loop: why the next chunk's segment began, until it is sent
+        self._opening = Opening.FIRST  # closed loop: why the next chunk's segment began, until it is sent
         self._cond = threading.Condition()
         self._state: m.RobotState | None = None
         self._state_count = 0
@@ -421,7 +422,7 @@ class ZenohReachEnv(ReachSpec):
             self._ticks.clear()
             self._last_state = self._state
         self._steps = 0
-        self._opening = "first"
+        self._opening = Opening.FIRST
         obs, _, info = self._observe()
         return obs, info
 
@@ -486,7 +487,7 @@ class ZenohReachEnv(ReachSpec):
                 pass
             # At most one resend per tick: a "held" verdict comes before the state that shows the hold.
             self._wait(lambda t=tick0: self._state is not None and self._state.tick > t, 2 * self.period)
-        self._opening = "continue"  # played: the segment's later chunks continue it
+        self._opening = Opening.CONTINUE  # played: the segment's later chunks continue it
         self._steps += 1
         self.global_step += 1
         obs, reward, info = self._observe()
@@ -550,7 +551,7 @@ class ZenohReachEnv(ReachSpec):
         newest = self.book.newest()
         segment = newest.plan.segment if newest is not None else 0
         here = np.stack([obs, obs])
-        self._publish_plan(Plan(-1, stay, stay, here, segment=segment, opened_by="target_lost"))
+        self._publish_plan(Plan(-1, stay, stay, here, segment=segment, opened_by=Opening.TARGET_LOST))
         self._await_target()
         with self._cond:
             self.outage_ticks += len(self._ticks)

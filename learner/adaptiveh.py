@@ -40,12 +40,13 @@ from learner.plan_tolerance import (
     PlanTolerance,
     narrowest_scale,
 )
-from learner.plans import Plan, PlanChannel, QueuedChannel, opening, rollout, sample_plan
+from learner.plans import Plan, PlanChannel, QueuedChannel, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, default_threshold
+from learner.segments import Opening, SegmentEnd, opening, segment_end
 from learner.snapshot import PolicySnapshot
 
 
@@ -170,7 +171,7 @@ class AdaptiveH:
             self.model, self.channel = self._plan_execution(env)
         self._plan: Plan | None = None  # the open segment's plan
         self._plan_started = False  # one of its actions has played
-        self._opening = "first"  # why the next plan is made (``learner.plans.Plan.opened_by``)
+        self._opening = Opening.FIRST  # why the next plan is made (``learner.plans.Plan.opened_by``)
         self._plans: dict[int, Plan] = {}  # recent plans by id: with latency the previous one still plays
         self._next_plan_id = 0
 
@@ -254,6 +255,7 @@ class AdaptiveH:
             self._plan_started = False
             self.channel.send(self._plan)
         s = self.normalize(self._obs)
+        plan_started = self._plan_started
         step = self.channel.advance()
         plan = self._plans.get(step.plan_id)
         raw = plan.raw[step.index] if plan is not None else np.asarray(step.action, float)
@@ -276,13 +278,10 @@ class AdaptiveH:
             predicted,
             reached,
             ahead=step.index + 1,
+            plan_gone=step.plan_id == -1 and plan_started,
         )
         if step.plan_id == self._plan.plan_id:
             self._plan_started = True
-        elif step.plan_id == -1 and self._plan_started and record is None:
-            # The plan is gone (played out, or dropped by an e-stop or a refusal) and the arm holds:
-            # that ends the segment like the plan's end, rather than idling to h_max.
-            record = self._close_segment("h_max")
         if record is not None:
             self._plan = None  # the segment closed: the next step re-plans and preempts the rest
             self._opening = opening(record.reason)
@@ -306,15 +305,17 @@ class AdaptiveH:
         statistic: float | None = None,
         noise: np.ndarray | None = None,
         ahead: int = 0,
+        plan_gone: bool = False,
     ) -> SegmentRecord | None:
         """Learn from one executed step (``predicted``: ``ahead`` steps into its plan). The segment closes
-        by the agent's own test, or where ``decided`` says (an actor's: "open", "retreat", "h_max" or
-        "episode_end", with the ``statistic`` it saw)."""
+        by the agent's own test (``learner.segments.segment_end``; ``plan_gone``: this tick played no
+        action of the segment's plan after one did), or where ``decided`` says (an actor's
+        ``SegmentEnd``, with the ``statistic`` it saw)."""
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
             # A NaN must never reach the dictionaries: drop the sample and close the segment.
             self.nonfinite_skipped += 1
-            return self._close_segment("episode_end" if episode_over else "retreat")
+            return self._close_segment(SegmentEnd.EPISODE_END if episode_over else SegmentEnd.RETREAT)
         if noise is None:
             log_prob, score = self.policy.log_prob_and_score(s, raw)  # under the policy that drew raw
         else:  # an actor's sample, drawn by a snapshot of this policy: scored by its own noise
@@ -322,22 +323,19 @@ class AdaptiveH:
         g, advantage = self._gradient(s, raw, score, reward, s_next, terminated)
         if not np.isfinite(float(np.linalg.norm(g))):
             self.nonfinite_skipped += 1
-            return self._close_segment("retreat")
+            return self._close_segment(SegmentEnd.RETREAT)
         g = self._shape(s, g)
         if self.config.advantage_lambda > 0.0:
             self._accrue(s, score, advantage, episode_over)
         if self.replay is not None:
             self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
         retreat = self.retreat.push(s, g, predicted, reached, decided is not None, statistic, ahead)
-        if decided is not None:  # an actor's plan: it evaluated the retreat where the plan played
-            return self._close_segment(decided) if decided != "open" else None
-        if retreat:
-            return self._close_segment("retreat")
-        if len(self.retreat.states) >= self.segment_limit:
-            return self._close_segment("h_max")
-        if episode_over:
-            return self._close_segment("episode_end")
-        return None
+        if decided is None:
+            decided = segment_end(
+                retreat, len(self.retreat.states), self.segment_limit, episode_over, plan_gone
+            )
+        # else: an actor's plan, judged where it played (the same rules, ``deploy.actor_node``)
+        return None if decided == SegmentEnd.OPEN else self._close_segment(SegmentEnd(decided))
 
     # -- learning from an actor ------------------------------------------------------------------
     def learn_transition(
@@ -543,7 +541,7 @@ class AdaptiveH:
     def _reset_episode(self) -> None:
         obs, _ = (self.channel or self.env).reset(seed=self._episode_seed)
         self._plan = None
-        self._opening = "first"
+        self._opening = Opening.FIRST
         self._episode_seed += 1
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0

@@ -20,11 +20,9 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from learner.segments import Opening
+
 Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-
-# Why a plan is made (``Plan.opened_by``); "continue": a closed-loop step's chunk inside its segment.
-OPENINGS = ("first", "retreat", "h_max", "target_lost", "continue")
 
 
 @dataclass
@@ -33,8 +31,8 @@ class Plan:
     ``predicted[i + 1]`` is where the model expects it to lead. ``raw`` keeps the unclipped samples.
 
     A plan is one segment's actions: ``segment`` numbers it and ``opened_by`` says why it was made (how
-    the plan before it ended: one of ``OPENINGS``), so whoever plays it can report a retreat's plan as
-    one without a second account of segments."""
+    the plan before it ended: a ``learner.segments.Opening``), so whoever plays it can report a
+    retreat's plan as one without a second account of segments."""
 
     plan_id: int
     actions: np.ndarray
@@ -42,16 +40,10 @@ class Plan:
     predicted: np.ndarray  # len(actions) + 1 observations
     noise: np.ndarray | None = None  # raw - the mean that drew it, when the planner keeps it (an actor)
     segment: int = 0
-    opened_by: str = "first"
+    opened_by: Opening = Opening.FIRST
 
     def __post_init__(self) -> None:
-        if self.opened_by not in OPENINGS:
-            raise ValueError(f"Plan.opened_by: {self.opened_by!r} is not one of {OPENINGS}")
-
-
-def opening(segment_end: str) -> str:
-    """Why the next plan is made, from how the segment before it ended (an episode's end: a first plan)."""
-    return "first" if segment_end == "episode_end" else segment_end
+        self.opened_by = Opening(self.opened_by)  # a ValueError naming the value for anything else
 
 
 @dataclass
@@ -104,7 +96,7 @@ def sample_plan(
     model: Model,
     sample: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     segment: int = 0,
-    opened_by: str = "first",
+    opened_by: Opening = Opening.FIRST,
 ) -> Plan:
     """``n`` actions drawn by ``sample(obs) -> (clipped, raw)`` along the states ``model`` predicts from
     ``obs``: segment ``segment``'s plan, made wherever the policy is held (the learner, or an actor)."""

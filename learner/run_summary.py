@@ -12,8 +12,7 @@ from typing import Any
 import numpy as np
 
 from learner.protocol import RunLog
-
-REASONS = ("retreat", "h_max", "episode_end")
+from learner.segments import CLOSED
 
 
 def h_stats(H: Sequence[float] | np.ndarray) -> dict[str, float]:
@@ -38,7 +37,7 @@ def summarize(log: RunLog) -> dict[str, Any]:
         "final_return": float(rets[-tenth:].mean()) if len(rets) else None,
         "best_return": float(rets.max()) if len(rets) else None,
         "segments": len(log.segments),
-        "reasons": {r: sum(1 for s in log.segments if s.reason == r) for r in REASONS},
+        "reasons": {r.value: sum(1 for s in log.segments if s.reason == r) for r in CLOSED},
     }
     if log.segments:
         out["H"] = h_stats([s.H for s in log.segments])

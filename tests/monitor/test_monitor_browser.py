@@ -1,7 +1,7 @@
-"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run (the
-product's default: the actor's plans): retreat events arrive, plans show planned against executed, E-STOP holds the arm without
-a token, the token typed once survives a reload and never shows in the URL, release lets learning
-resume. Saves a screenshot."""
+"""The monitor page in a real browser (Debian's headless Chromium via Playwright) during a live sim run
+(the product's default: the actor's plans): retreat events arrive, plans show planned against executed,
+E-STOP holds the arm without a token, the token typed once survives a reload and never shows in the URL,
+release lets learning resume. Saves a screenshot."""
 
 import json
 import os
