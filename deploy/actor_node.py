@@ -30,8 +30,8 @@ from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig
-from learner.plans import Executed, Plan
-from learner.segments import Opening, SegmentEnd, opening, segment_end
+from learner.plans import Executed, OpenSegment, Plan, Played
+from learner.segments import Opening, SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot, SnapshotError
 
 log = logging.getLogger(__name__)
@@ -54,7 +54,7 @@ class ActorNode(Node):
         self._lock = threading.Lock()
         self._offered: PolicySnapshot | None = None  # the newest accepted snapshot, taken at the next segment
         self._episode_seed = lc.seed
-        self._plans: dict[int, Plan] = {}  # recent plans by id: a tick can still play the previous one
+        self.segment = OpenSegment()  # the segment in play (and the plans that may still be playing)
         self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
         # Plans whose first action played, those that began ticks after the state they were planned from
         # (the ticks between played the plan before's tail or a hold), and those ticks in all.
@@ -153,37 +153,33 @@ class ActorNode(Node):
         obs, info = self.env.reset(seed=self._episode_seed)
         self._episode_seed += 1
         episode = self.counts["episodes"]
-        plan: Plan | None = None
-        played = length = 0
-        opened_by = Opening.FIRST
+        seg = self.segment
+        seg.new_episode()
         tick = None  # of ``obs``: the plan model learns from consecutive ticks only (an outage skips some)
         seen = planned_from = info.get("tick")  # the tick of ``obs``; of the state the plan was made from
         while not self.stopping:
             # A plan is made from the newest tick only: ticks that played while this process was held up
             # (a stall, a loaded machine) are streamed first, never planned from.
-            if plan is None and not self.env.backlog():
+            if seg.plan is None and not self.env.backlog():
                 self._take_offered()
-                plan, planned_from = self.actor.plan(obs, self.counts["segments"], opened_by), seen
-                recent = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2}
-                self._plans = recent | {plan.plan_id: plan}
-                self.env.send(plan)
+                seg.open(self.actor.plan(obs, self.counts["segments"], seg.opened_by))
+                planned_from = seen
+                self.env.send(seg.plan)
             step = self.env.advance()
             if step.plan_id != -1 and tick is not None and step.info.get("tick") == tick + 1:
                 self.actor.model.observe(obs, step.action, step.obs)  # what the world did with it
-            if plan is not None and step.plan_id == plan.plan_id and step.index == 0:
-                self._plan_started(plan, obs, step.info.get("tick"), planned_from, seen)
+            played = seg.tick(step)
+            if played.current and step.index == 0:
+                self._plan_started(played.source, obs, step.info.get("tick"), planned_from, seen)
             tick = seen = step.info.get("tick")
-            length += 1
-            stat, end = self._judge(plan, step, length, played)
-            played += plan is not None and step.plan_id == plan.plan_id
-            self._publish(episode, obs, step, stat, end, plan)
+            stat, end = self._judge(step, played)
+            self._publish(episode, obs, step, stat, end, played)
             self._report_held_back()
             self.counts["steps"] += 1
             if end != SegmentEnd.OPEN:
                 self.counts["segments"] += 1
                 self.counts["retreats"] += end == SegmentEnd.RETREAT
-                opened_by = opening(end)
-                plan, played, length = None, 0, 0
+                seg.close(end)
             if step.terminated or step.truncated:
                 self.counts["episodes"] += 1
                 return
@@ -205,20 +201,15 @@ class ActorNode(Node):
             if before == tick - 1:
                 self.actor.anchor(plan, obs)
 
-    def _judge(
-        self, plan: Plan | None, step: Executed, length: int, played: int
-    ) -> tuple[float | None, SegmentEnd]:
+    def _judge(self, step: Executed, played: Played) -> tuple[float | None, SegmentEnd]:
         """(the retreat statistic, how the segment stands after ``step``): by the rules ``AdaptiveH``
         closes one in-process with (``learner.segments.segment_end``)."""
         stat = None
-        if plan is not None and step.plan_id == plan.plan_id:
-            stat = self.actor.statistic(step.index + 1, plan.predicted[step.index + 1], step.obs)
+        if played.current:
+            stat = self.actor.statistic(step.index + 1, played.predicted(step), step.obs)
+        ticks, limit = self.segment.ticks, self.actor.segment_limit
         episode_over = step.terminated or step.truncated
-        plan_gone = step.plan_id == -1 and played > 0
-        end = segment_end(
-            self.actor.retreats(stat), length, self.actor.segment_limit, episode_over, plan_gone
-        )
-        return stat, end
+        return stat, segment_end(self.actor.retreats(stat), ticks, limit, episode_over, played.plan_gone)
 
     def _publish(
         self,
@@ -227,12 +218,11 @@ class ActorNode(Node):
         step: Executed,
         stat: float | None,
         end: SegmentEnd,
-        plan: Plan | None,
+        played: Played,
     ) -> None:
-        source = self._plans.get(step.plan_id)
-        raw = source.raw[step.index] if source is not None else np.asarray(step.action, float)
+        raw, source = played.raw(step), played.source
         noise = source.noise[step.index] if source is not None else np.zeros_like(raw)  # a hold: no draw
-        predicted = source.predicted[step.index + 1] if source is not None and source is plan else ()
+        predicted = played.predicted(step)
         msg = m.Transition(
             step=self.counts["steps"],
             episode=episode,
@@ -246,7 +236,7 @@ class ActorNode(Node):
             truncated=step.truncated,
             success=bool(step.info.get("success", False)),
             distance=float(step.info.get("distance", 0.0)),
-            predicted=np.asarray(predicted, float).tolist(),
+            predicted=[] if predicted is None else np.asarray(predicted, float).tolist(),
             end=m.enum(m.Transition, "end", end),
             policy_version=max(self.actor.version, 0),
             target_age=float(step.info.get("target_age_s", 0.0)),

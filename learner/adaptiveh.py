@@ -40,13 +40,13 @@ from learner.plan_tolerance import (
     PlanTolerance,
     narrowest_scale,
 )
-from learner.plans import Plan, PlanChannel, QueuedChannel, rollout, sample_plan
+from learner.plans import OpenSegment, Plan, PlanChannel, QueuedChannel, rollout, sample_plan
 from learner.policy import RKHSGaussianPolicy
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, default_threshold
-from learner.segments import Opening, SegmentEnd, opening, segment_end
+from learner.segments import SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot
 
 
@@ -169,10 +169,7 @@ class AdaptiveH:
         self.channel: PlanChannel | None = None
         if cfg.execution == "plan":
             self.model, self.channel = self._plan_execution(env)
-        self._plan: Plan | None = None  # the open segment's plan
-        self._plan_started = False  # one of its actions has played
-        self._opening = Opening.FIRST  # why the next plan is made (``learner.plans.Plan.opened_by``)
-        self._plans: dict[int, Plan] = {}  # recent plans by id: with latency the previous one still plays
+        self.segment = OpenSegment()  # plan execution: the segment in play
         self._next_plan_id = 0
 
     def _plan_execution(self, env: gym.Env):
@@ -239,29 +236,26 @@ class AdaptiveH:
             self.model,
             lambda x: self.policy.sample(self.normalize(x), self.rng),
             segment=self.log.segment_count,
-            opened_by=self._opening,
+            opened_by=self.segment.opened_by,
         )
         self._next_plan_id += 1
-        self._plans = {k: v for k, v in self._plans.items() if k >= plan.plan_id - 2} | {plan.plan_id: plan}
         return plan
 
     def _step_plan(self) -> SegmentRecord | None:
         """One control step of the channel: (re)plan when no segment is open, learn from what ran."""
         if self._obs is None:
             self._reset_episode()
-        if self._plan is None:
+        seg = self.segment
+        if seg.plan is None:
             self._schedule()
-            self._plan = self._make_plan(self._obs)
-            self._plan_started = False
-            self.channel.send(self._plan)
+            seg.open(self._make_plan(self._obs))
+            self.channel.send(seg.plan)
         s = self.normalize(self._obs)
-        plan_started = self._plan_started
         step = self.channel.advance()
-        plan = self._plans.get(step.plan_id)
-        raw = plan.raw[step.index] if plan is not None else np.asarray(step.action, float)
+        played = seg.tick(step)
         predicted = reached = None
-        if plan is self._plan and np.all(np.isfinite(step.obs)):
-            predicted, reached = self.normalize(plan.predicted[step.index + 1]), self.normalize(step.obs)
+        if played.current and np.all(np.isfinite(step.obs)):
+            predicted, reached = self.normalize(played.predicted(step)), self.normalize(step.obs)
         if step.plan_id != -1:  # an action played: what the world did with it
             self.model.observe(self._obs, step.action, step.obs)
         self.log.global_step += 1
@@ -270,7 +264,7 @@ class AdaptiveH:
         episode_over = step.terminated or step.truncated
         record = self._learn_from(
             s,
-            raw,
+            played.raw(step),
             step.reward,
             step.obs,
             step.terminated,
@@ -278,13 +272,10 @@ class AdaptiveH:
             predicted,
             reached,
             ahead=step.index + 1,
-            plan_gone=step.plan_id == -1 and plan_started,
+            plan_gone=played.plan_gone,
         )
-        if step.plan_id == self._plan.plan_id:
-            self._plan_started = True
         if record is not None:
-            self._plan = None  # the segment closed: the next step re-plans and preempts the rest
-            self._opening = opening(record.reason)
+            seg.close(record.reason)  # the next step re-plans and preempts the rest
         if episode_over:
             self._finish_episode(step.info)
         elif np.all(np.isfinite(step.obs)):
@@ -540,8 +531,7 @@ class AdaptiveH:
 
     def _reset_episode(self) -> None:
         obs, _ = (self.channel or self.env).reset(seed=self._episode_seed)
-        self._plan = None
-        self._opening = Opening.FIRST
+        self.segment.new_episode()
         self._episode_seed += 1
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0
@@ -562,7 +552,7 @@ class AdaptiveH:
             )
         )
         self._obs = None
-        self._plan = None
+        self.segment.new_episode()
 
     # -- checkpoints ----------------------------------------------------------------------------
     def state_dict(self) -> dict:

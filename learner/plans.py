@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from learner.segments import Opening
+from learner.segments import Opening, opening
 
 Model = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -58,6 +58,58 @@ class Executed:
     terminated: bool
     truncated: bool
     info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Played:
+    """What a tick played, read against the open segment (``OpenSegment.tick``)."""
+
+    source: Plan | None  # the plan whose action played (this segment's or one before), None for a hold
+    current: bool  # it is this segment's plan
+    plan_gone: bool  # a hold after this segment's plan had begun: played out, or dropped (e-stop, refusal)
+
+    def raw(self, step: Executed) -> np.ndarray:
+        """The unclipped sample of the action that played (a hold's: the action itself)."""
+        return self.source.raw[step.index] if self.source is not None else np.asarray(step.action, float)
+
+    def predicted(self, step: Executed) -> np.ndarray | None:
+        """Where this segment's plan expected the tick to lead (None for any other plan's, or a hold)."""
+        return self.source.predicted[step.index + 1] if self.current else None
+
+
+class OpenSegment:
+    """The one account of the segment in play, for whoever plays plans (``AdaptiveH`` in-process, the
+    actor beside the arm): its plan, the plans that may still be playing (a tick can play the tail of the
+    one before, or a plan sent late), the ticks since the last one closed, and why the next plan is made."""
+
+    KEEP = 3  # plans by id: the open one and the two before it
+
+    def __init__(self) -> None:
+        self.plan: Plan | None = None
+        self.opened_by = Opening.FIRST
+        self.started = False  # one of its plan's actions has played
+        self.ticks = 0
+        self._recent: dict[int, Plan] = {}
+
+    def open(self, plan: Plan) -> None:
+        self.plan = plan
+        self._recent = {k: v for k, v in self._recent.items() if k > plan.plan_id - self.KEEP}
+        self._recent[plan.plan_id] = plan
+
+    def tick(self, step: Executed) -> Played:
+        """Account for one tick of the channel."""
+        current = self.plan is not None and step.plan_id == self.plan.plan_id
+        played = Played(self._recent.get(step.plan_id), current, step.plan_id == -1 and self.started)
+        self.ticks += 1
+        self.started = self.started or current
+        return played
+
+    def close(self, end: str) -> None:
+        """The segment ended by ``end``: the next tick plans anew, and its plan says why."""
+        self.plan, self.opened_by, self.started, self.ticks = None, opening(end), False, 0
+
+    def new_episode(self) -> None:
+        self.plan, self.opened_by, self.started, self.ticks = None, Opening.FIRST, False, 0
 
 
 class PlanChannel(Protocol):
