@@ -25,13 +25,12 @@ from bus import messages as m
 from bus.node import Node
 from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
-from deploy.plan_channel import PlanDrop
 from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig
 from learner.plans import Executed, OpenSegment, Plan, Played
-from learner.segments import Opening, SegmentEnd, segment_end
+from learner.segments import SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot, SnapshotError
 
 log = logging.getLogger(__name__)
@@ -59,10 +58,7 @@ class ActorNode(Node):
         # Plans whose first action played, those that began ticks after the state they were planned from
         # (the ticks between played the plan before's tail or a hold), and those ticks in all.
         self.starts = {"plan_starts": 0, "plan_starts_late": 0, "late_ticks": 0}
-        self.retreat_preemptions = 0  # a retreat's plan preempting the rest of the one before
-        self.retreat_dropped = 0
         self._refusals = Throttle("refused snapshots", EVENT_EVERY_S)
-        self.env.on_plan_dropped = self._on_plan_dropped
         self._pub_transition = self.bus.publisher(m.TRANSITIONS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
         self.bus.subscribe(m.POLICY, self._on_snapshot, on_bad=self._on_bad_snapshot)
@@ -245,22 +241,13 @@ class ActorNode(Node):
             msg.statistic = stat
         self._pub_transition(msg)
 
-    def _on_plan_dropped(self, drop: PlanDrop) -> None:
-        if drop.by_opening == Opening.RETREAT:
-            self.retreat_preemptions += 1
-            self.retreat_dropped += drop.dropped
-
     def _write_counts(self) -> dict[str, Any]:
         env = self.env
         out = {
             **self.counts,
             **self.starts,
             "policy_version": self.actor.version,
-            "dropped_planned": env.book.dropped_planned,
-            "dropped_planned_moving": env.book.dropped_moving,
-            "retreat_preemptions": self.retreat_preemptions,
-            "retreat_dropped": self.retreat_dropped,
-            "preemptions": env.book.preemptions,
+            **env.book.counts(),
             "target_waits": env.target_waits,
             "outage_ticks": env.outage_ticks,
             "suspended_ticks": env.suspended_ticks,

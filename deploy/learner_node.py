@@ -31,7 +31,7 @@ from bus.signing import ForgedMessage, Fresh, authentic
 from bus.transport import Bus
 from common.heap import release_free_heap
 from deploy.config import StackConfig
-from deploy.plan_channel import DelayedSender, PlanDrop
+from deploy.plan_channel import DelayedSender
 from deploy.policy_wire import snapshot_message
 from deploy.run_report import started_from
 from deploy.zenoh_env import EnvStopped, ReachSpec, TakenOver, ZenohReachEnv, env_settings
@@ -39,7 +39,6 @@ from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
-from learner.segments import Opening
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
@@ -132,16 +131,11 @@ class LearnerNode(Node):
         self._episodes_seen = self.agent.log.episode_count
         self._segments_seen = self.agent.log.segment_count
         self.archive = RunArchive(self.ckpt.parent, self.agent.log)
-        self.retreat_preemptions = 0  # a retreat's first chunk preempting the previous segment's plan
-        self.retreat_dropped = 0
-        self.retreat_dropped_moving = 0  # of the retreat-dropped actions, the non-zero ones
         if self.stream:
             self.feed = TransitionFeed(self.bus)
             self._pub_policy = self.bus.publisher(m.POLICY)
             delay = self.cfg.latency_ms / 1000.0
             self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
-        else:
-            self.env.on_plan_dropped = self._on_plan_dropped
         self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
         self.declare_alive()
 
@@ -154,13 +148,6 @@ class LearnerNode(Node):
             a = np.asarray(self.agent.predict(o, deterministic=True), float).reshape(3)
             out.append(a)
         return np.asarray(out)
-
-    def _on_plan_dropped(self, drop: PlanDrop) -> None:
-        """A plan (closed loop: a step's chunk) made after a retreat preempted the rest of the one before."""
-        if drop.by_opening == Opening.RETREAT:
-            self.retreat_preemptions += 1
-            self.retreat_dropped += drop.dropped
-            self.retreat_dropped_moving += drop.moving
 
     def _on_control(self, msg: m.Control) -> None:
         command = m.label(msg, "command")
@@ -319,17 +306,13 @@ class LearnerNode(Node):
         return {
             "session": env.session.id,
             "refused_chunks": dict(env.refused),
-            "chunk_preemptions": env.preemptions,
-            "dropped_actions": env.dropped_total,
+            **env.book.counts(),
+            "chunk_preemptions": env.book.preemptions,  # the names older results and benches read
+            "dropped_actions": env.book.dropped_planned,
             "target_waits": env.target_waits,
             "outage_ticks": env.outage_ticks,
-            "dropped_planned": env.book.dropped_planned,
-            "dropped_planned_moving": env.book.dropped_moving,
             "suspended_ticks": env.suspended_ticks,
             "robot_restarts": env.robot_restarts,
-            "retreat_preemptions": self.retreat_preemptions,
-            "retreat_dropped": self.retreat_dropped,
-            "retreat_dropped_moving": self.retreat_dropped_moving,
         }
 
     def _stream_counts(self) -> dict[str, Any]:

@@ -19,6 +19,7 @@ import numpy as np
 
 from bus import messages as m
 from learner.plans import Plan
+from learner.segments import Opening
 
 log = logging.getLogger(__name__)
 MOVING_M = 1e-9  # a planned step longer than this is motion (zeros are the "stay put" of closed loop)
@@ -48,7 +49,8 @@ class PlanDrop:
 
 
 class PlanBook:
-    """Chunk number -> sent plan (the newest ``keep``), and the account of planned actions dropped.
+    """Chunk number -> sent plan (the newest ``keep``), and the one account of what a newer plan dropped
+    of the planned actions, as robot-io reports it (``counts``: what the actor and the learner report).
 
     Thread-safe: the sender records from its thread, the learner looks up ticks, Zenoh reports status.
     """
@@ -62,6 +64,9 @@ class PlanBook:
         self.dropped_planned = 0  # planned actions dropped by a newer plan, total
         self.dropped_moving = 0  # of which non-zero motions
         self.preemptions = 0
+        self.retreat_preemptions = 0  # of them by a plan made after a retreat, the actions they dropped
+        self.retreat_dropped = 0
+        self.retreat_dropped_moving = 0
         self.foreign_ticks = 0  # ticks that played a chunk not in the book (reported as holds)
         self.drops: deque[PlanDrop] = deque(maxlen=256)
         self._refused: set[int] = set()  # sent plans robot-io's status refused (of the newest ``keep``)
@@ -123,8 +128,25 @@ class PlanBook:
             self.dropped_planned += drop.dropped
             self.dropped_moving += drop.moving
             self.preemptions += 1
+            if drop.by_opening == Opening.RETREAT:
+                self.retreat_preemptions += 1
+                self.retreat_dropped += drop.dropped
+                self.retreat_dropped_moving += drop.moving
             self.drops.append(drop)
             return drop
+
+    def counts(self) -> dict[str, int]:
+        """The account as run results report it."""
+        with self._lock:
+            return {
+                "preemptions": self.preemptions,
+                "dropped_planned": self.dropped_planned,
+                "dropped_planned_moving": self.dropped_moving,
+                "retreat_preemptions": self.retreat_preemptions,
+                "retreat_dropped": self.retreat_dropped,
+                "retreat_dropped_moving": self.retreat_dropped_moving,
+                "foreign_ticks": self.foreign_ticks,
+            }
 
 
 def played(state: m.RobotState, book: PlanBook, session: str) -> tuple[int, int, np.ndarray]:

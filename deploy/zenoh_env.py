@@ -43,7 +43,7 @@ from bus.learner_session import REFUSALS, LearnerSession
 from bus.transport import Bus
 from common.errors import AdaptiveHError
 from deploy.config import StackConfig
-from deploy.plan_channel import PlanBook, PlanDrop, played
+from deploy.plan_channel import PlanBook, played
 from learner.plans import Executed, Plan
 from learner.segments import Opening, opening
 from robot_io.step_cap import cap_step_length
@@ -211,8 +211,6 @@ class ZenohReachEnv(ReachSpec):
         self.chunk_seq = -1  # the last chunk sent
         self.global_step = 0
         self._steps = 0
-        self.dropped_total = 0
-        self.preemptions = 0
         self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
         # The robot's ticks not yet read (an actor's: by ``advance``, with the target then known; closed
         # loop: since the last chunk went out, bounded while no step waits), and the plans sent.
@@ -224,7 +222,6 @@ class ZenohReachEnv(ReachSpec):
         self._last_state: m.RobotState | None = None  # of the last tick ``advance`` returned
         self.suspended_ticks = 0
         self.book = PlanBook()
-        self.on_plan_dropped: Callable[[PlanDrop], None] | None = None
         # This learner's session: its chunks are numbered from 0 and obeyed once ``reset`` has taken over.
         self.session = LearnerSession(bus)
         self.refused: dict[str, int] = {}  # own chunks robot-io refused, by verdict
@@ -304,12 +301,7 @@ class ZenohReachEnv(ReachSpec):
         if verdict in REFUSALS:
             self._on_refused(msg, verdict)
             return
-        if msg.preempted_by >= 0 and msg.dropped:
-            self.dropped_total += msg.dropped
-            self.preemptions += 1
-        drop = self.book.on_status(msg)
-        if drop is not None and self.on_plan_dropped is not None:
-            self.on_plan_dropped(drop)
+        self.book.on_status(msg)
 
     def _on_refused(self, msg: m.ChunkStatus, verdict: str) -> None:
         """robot-io refused our chunk: say so (once per kind, then every 100th), let a waiting step resend."""
@@ -375,7 +367,7 @@ class ZenohReachEnv(ReachSpec):
             "global_step": self.global_step,
             "target_speed": float(np.linalg.norm(target.velocity)),
             "target_age_s": age,
-            "dropped_total": self.dropped_total,
+            "dropped_total": self.book.dropped_planned,
             "tick": state.tick,  # the robot's control tick the observation is from
         }
         return obs, reward, info

@@ -94,13 +94,11 @@ def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot_hub):
 
 def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
     """Closed loop: the chunk that opens a segment after a retreat says so, and robot-io's status of the
-    chunk it cut echoes it. Each step's chunk is a plan through the plan channel: the drop reaches the
-    learner as plan mode's do (``on_plan_dropped``), one account, not a second one of its own."""
+    chunk it cut echoes it. Each step's chunk is a plan through the plan channel: the drop is in the one
+    account of drops (``PlanBook``) the actor's plans are in, not a second one of its own."""
     stack, probe = robot_hub
     chunks = probe.collect(m.CMD_CHUNK, arrival=False)
     env = open_env(stack, probe.token, execution="closed_loop", chunk_len=5)
-    drops: list = []
-    env.on_plan_dropped = drops.append
     try:
         env.reset(seed=3)
         me = env.session.id
@@ -112,7 +110,8 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
         def cut() -> list[m.ChunkStatus]:
             return [s for s in probe.status if s.session == me and s.preempted_by >= 0 and s.dropped]
 
-        probe.wait(lambda: len(cut()) >= 2, 5, "the status of the cut chunks")
+        probe.wait(lambda: len(cut()) >= 2 and len(env.book.drops) >= 2, 5, "the status of the cut chunks")
+        drops = list(env.book.drops)
         with probe.lock:
             mine = [(c.seq, c.segment, m.label(c, "opened_by")) for c in chunks if c.session == me]
             first, second = cut()[:2]
@@ -127,3 +126,7 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
         (1, 2, "continue"),
     ]
     assert drops[0].dropped == first.dropped and drops[0].moving == 0  # the tail stays put: no motion lost
+    assert (
+        env.book.counts()["retreat_preemptions"] == 1
+        and env.book.counts()["retreat_dropped"] == first.dropped
+    )
