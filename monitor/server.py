@@ -41,6 +41,7 @@ from monitor.view_limits import ViewLimits
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).parent / "static"
 PLANS_KEPT = 8  # the current plan and the recent ones the page draws
+SUCCESS_WINDOW = 20  # episodes in the success rate the page shows (the benches' rolling window)
 SNAPSHOT_MAX_AGE_S = 0.1  # the page polls a few times a second; a snapshot this old is still current
 MAX_BODY = 64 * 1024  # a control request is a few dozen bytes
 
@@ -242,6 +243,18 @@ class MonitorState:
             if t.episode and (not self.returns or self.returns[-1]["episode"] != t.episode):
                 self.returns.append({"episode": t.episode, "ret": t.episode_return, "success": t.success})
 
+    def _success(self) -> dict[str, Any]:
+        """The success rate over the last ``SUCCESS_WINDOW`` finished episodes, and the episode count.
+        Caller holds the lock."""
+        recent = [bool(r["success"]) for r in list(self.returns)[-SUCCESS_WINDOW:]]
+        rate = sum(recent) / len(recent) if recent else None
+        return {
+            "rate": rate,
+            "of": len(recent),
+            "window": SUCCESS_WINDOW,
+            "episodes": self.learner.get("episode", 0),
+        }
+
     def _image(self, a: m.AnnotatedImage) -> None:
         with self.lock:
             self.image, self.image_detected = a.jpeg, a.detected
@@ -269,6 +282,7 @@ class MonitorState:
                 "ee": list(self.ee),
                 "target": list(self.target),
                 "returns": list(self.returns),
+                "success": self._success(),
                 "safety": list(self.safety)[-20:],
                 "counts": dict(self.counts) | {"rejected": sum(self.bus.bad_messages.values())},
                 "plans": [

@@ -96,6 +96,11 @@ def test_monitor_in_chromium(tmp_path):
                 lambda: "ep " in page.inner_text("#learner"), 30, "learner telemetry on the page", every=0.2
             )
             assert page.inner_text("#policy-from") == "an empty policy (no handoff)"  # what it began with
+            # The success rate over the last 20 finished episodes, and how many episodes there were.
+            wait_until(lambda: "episodes)" in page.inner_text("#success"), 30, "a success rate", every=0.2)
+            shown = page.inner_text("#success")
+            sr = _state(url)["success"]
+            assert re.fullmatch(r"\d+ % of \d+ \(\d+ episodes\)", shown) and 1 <= sr["of"] <= 20, shown
             # Tests write only to temporary folders; the README's picture is refreshed on request, with
             # ADAPTIVEH_MONITOR_SCREENSHOT=results/monitor_screenshot.png (this file's test alone).
             shot = Path(os.environ.get("ADAPTIVEH_MONITOR_SCREENSHOT", str(tmp_path / "monitor_full.png")))
