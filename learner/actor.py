@@ -13,10 +13,10 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from learner.adaptiveh import FIELD_BUDGET, initial_policy, kernels, retreat_threshold, segment_limit
 from learner.config import AdaptiveHConfig
 from learner.dictionary import RKHSFunction
 from learner.normalizer import StateNormalizer
+from learner.parts import FIELD_BUDGET, initial_policy, kernels, retreat_threshold, segment_limit
 from learner.plan_model import plan_model
 from learner.plans import Plan, predicted_states, sample_plan
 from learner.retreat import plan_statistic
