@@ -11,6 +11,7 @@ arrival; a chunk's stamp to the robot tick that played its first action; that ti
 chunk), the learner's steps, episodes and success, restarts and safety events. Then it stops the stack
 with SIGTERM, checks the MCAP recording for ``seq`` gaps on the same keys, fits each process's RSS slope
 over each half of the run, prints a summary and writes ``results/soak.json`` and ``results/soak.png``.
+``--replot`` runs nothing and redraws the figure from the JSON at ``--out``.
 """
 
 from __future__ import annotations
@@ -579,7 +580,7 @@ def plot(out: dict[str, Any], path: Path) -> None:
 
     samples = out["samples"]
     t = np.array([s["t"] for s in samples]) / 60
-    fig, ax = plt.subplots(2, 3, figsize=(18, 9))
+    fig, ax = plt.subplots(2, 3, figsize=(16, 9))  # 1600 px: a laptop screen
     _plot_memory(ax[0, 0], samples, t)
     _plot_cpu(ax[1, 0], samples, t)
     _plot_rates(ax[0, 1], samples, t)
@@ -819,8 +820,14 @@ def main() -> int:
         help="extra Zenoh config key for every part and the observer (an experiment, not the soak)",
     )
     ap.add_argument("--keep", action="store_true", help="keep the run directory (logs, recording)")
+    ap.add_argument("--replot", action="store_true", help="run nothing: redraw the .png from the --out JSON")
     args = ap.parse_args()
     os.chdir(ROOT)
+    if args.replot:
+        path = Path(args.out)
+        plot(json.loads(path.read_text()), path.with_suffix(".png"))
+        print(f"wrote {path.with_suffix('.png')}")
+        return 0
     run_dir = Path(tempfile.mkdtemp(prefix="soak-"))
     try:
         out = soak(args, run_dir)

@@ -13,6 +13,8 @@ Writes ``results/stack_bench.json`` and ``results/stack_bench.png``.
 late). The actor beside the arm (``learner.execution: actor``, the product's default) is measured by
 bench/stack_robustness.py. Run: ``python bench/stack_bench.py [--steps 1500] [--seed 0] [--latency-ms 250]
 [--algo rkhs --fixed-h 10]`` (the last two: the fixed-H learner instead of configs/sim.yaml's AdaptiveH).
+``--replot`` runs nothing and redraws the figure from the JSON at ``--out`` (the retired plan execution's
+``results/stack_bench_plan*.json`` too).
 """
 
 from __future__ import annotations
@@ -233,6 +235,7 @@ def plot(out: dict[str, Any], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))  # 1540 px: a laptop screen
     labels = {
         "zenoh": ("over Zenoh, closed loop", "tab:blue"),
+        "zenoh_plan": ("over Zenoh, plan execution (retired)", "tab:green"),  # the stack_bench_plan*.json
         "in_process": ("in-process NSReach-v0", "tab:orange"),
     }
     for name, (label, col) in labels.items():
@@ -264,6 +267,15 @@ def plot(out: dict[str, Any], path: Path) -> None:
         f"retreats: Zenoh {out['zenoh']['retreats']}/{out['zenoh']['segments']} segments,"
         f" in-process {out['in_process']['retreats']}/{out['in_process']['segments']}",
     ]
+    if "zenoh_plan" in out:
+        plan = out["zenoh_plan"]
+        text += [
+            f"plan execution, latency {plan['latency_ms']:.0f} ms: last-quarter",
+            f"  success {plan['success_by_quarter'][-1]}"
+            f" vs closed loop {out['zenoh']['success_by_quarter'][-1]}",
+            f"  retreats {plan['retreats']}/{plan['segments']}, dropped at retreat"
+            f" {plan['retreat_dropped']} ({plan['retreat_dropped_moving']} moving)",
+        ]
     axes[2].text(0.0, 0.95, "\n".join(text), va="top", family="monospace", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -281,8 +293,14 @@ def main() -> int:
     )
     ap.add_argument("--algo", default=None, help="override learner.algo (e.g. rkhs: fixed-H, no retreat)")
     ap.add_argument("--fixed-h", type=int, default=None, help="override learner.agent.fixed_h (algo rkhs)")
+    ap.add_argument("--replot", action="store_true", help="run nothing: redraw the .png from the --out JSON")
     args = ap.parse_args()
     os.chdir(ROOT)
+    if args.replot:
+        path = Path(args.out)
+        plot(json.loads(path.read_text()), path.with_suffix(".png"))
+        print(f"wrote {path.with_suffix('.png')}")
+        return 0
     cfg = compose_stack_yaml(args.config)
     if args.seed is not None:
         cfg["learner"]["seed"] = args.seed

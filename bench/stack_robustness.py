@@ -15,8 +15,9 @@ Per run: success and final distance by quarter, mean H, retreats, safety events 
 clips among them), the target's age when it reached this process (p50/p99: capture -> arrival) and
 state -> chunk latency (a state's stamp to the next chunk's). The in-process learner (``NSReach-v0``) on
 the same seeds is the reference. Runs are kept one per file under ``results/stack_robustness/`` and a
-finished one is not run again (resumable); ``results/stack_robustness.json`` and ``.png`` summarise
-whatever has finished. One run at a time: they would load each other.
+finished one is not run again (resumable); ``results/stack_robustness.json`` and ``.png`` (the shipped
+stack; ``_history.png``: the other variants) summarise whatever has finished (``--replot``: only redraw
+the figures from the JSON). One run at a time: they would load each other.
 
     python bench/stack_robustness.py [--seeds 0 1 2] [--conditions quiet loaded ...] [--steps 6000]
 """
@@ -52,6 +53,7 @@ from deploy.config import compose_stack_yaml, load_stack_config, load_yaml  # no
 from deploy.stack import running_parts  # noqa: E402
 
 OUT = ROOT / "results" / "stack_robustness"
+GOAL = 0.70  # issue #32: last-quarter success in every run
 SLOW_CAMERA_HZ = 5.0
 CONDITIONS: dict[str, dict[str, Any]] = {
     "quiet": {},
@@ -339,26 +341,97 @@ def table(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def plot(runs: list[dict[str, Any]], path: Path) -> None:
+    """``path``: the shipped stack, one panel per condition; ``<stem>_history.png`` beside it when other
+    variants ran: one panel per variant against the shipped stack (each at most 1600 px wide)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    conds = _labels(runs)
-    fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(conds)), 4))
-    for i, cond in enumerate(conds):
-        rows = [r for r in runs if label(r) == cond]
-        for r in rows:
-            q = [np.nan if x is None else 100 * x for x in r["success_by_quarter"]]
-            ax.plot(i + np.array([-0.3, -0.1, 0.1, 0.3]), q, "o-", ms=3, alpha=0.7)
-    ax.axhline(70, color="g", ls="--", lw=1, label="goal: last quarter >= 70 %")
-    ax.set_xticks(range(len(conds)), conds, rotation=20)
-    ax.set(
-        ylabel="success by quarter, % (one line per seed)", ylim=(-5, 105), title="NS Reach over the stack"
+    order = [*CONDITIONS, "in_process"]
+    shipped = [r for r in runs if not r.get("variant")]
+    conds = [c for c in order if any(r["condition"] == c for r in shipped)]
+    cols = max(1, min(4, len(conds)))
+    rows = max(1, -(-len(conds) // cols))
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(3.6 * cols, 2.8 * rows + 0.8), sharex=True, sharey=True, squeeze=False
     )
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
+    for ax, cond in zip(axes.flat, conds, strict=False):
+        for r in sorted((r for r in shipped if r["condition"] == cond), key=lambda r: r["seed"]):
+            q = [np.nan if x is None else 100 * x for x in r["success_by_quarter"]]
+            ax.plot(range(1, 5), q, "o-", ms=3, lw=1, color=f"C{r['seed'] % 10}", label=f"seed {r['seed']}")
+        ax.set_title("in_process (reference)" if cond == "in_process" else cond, fontsize=10)
+    for ax in axes.flat:
+        ax.axhline(100 * GOAL, color="g", ls="--", lw=1, label=f"goal: last quarter >= {100 * GOAL:.0f} %")
+        ax.set(xticks=range(1, 5), ylim=(-5, 105))
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(conds) :]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("success, %")
+    for ax in axes[-1]:
+        ax.set_xlabel("quarter of the run")
+    _figure_legend(fig, axes)
+    fig.suptitle("NS Reach over the shipped stack (configs/sim.yaml): success by quarter, one line per seed")
+    _save(fig, path)
+
+    variants = [v for v in VARIANTS if v and any(r.get("variant") == v for r in runs)]
+    if not variants:
+        return
+    cols = min(3, len(variants))
+    rows = -(-len(variants) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 3.3 * rows + 0.8), sharey=True, squeeze=False)
+    for ax, variant in zip(axes.flat, variants, strict=False):
+        mine = [r for r in runs if r.get("variant") == variant]
+        vconds = [c for c in order if any(r["condition"] == c for r in mine)]
+        for i, cond in enumerate(vconds):
+            last = _last_quarter([r for r in mine if r["condition"] == cond])
+            ax.plot(
+                i + (np.linspace(-0.12, 0.12, len(last)) if len(last) > 1 else 0.0),
+                last,
+                "o",
+                ms=4,
+                color="tab:blue",
+                alpha=0.8,
+                zorder=3,
+                label="this variant, one dot per seed",
+            )
+            ref = _last_quarter([r for r in shipped if r["condition"] == cond])
+            if ref:
+                ax.plot(i, np.median(ref), "_", ms=20, mew=2, color="black", label="shipped stack, median")
+        ax.axhline(100 * GOAL, color="g", ls="--", lw=1, label=f"goal: last quarter >= {100 * GOAL:.0f} %")
+        ax.set_xticks(range(len(vconds)), vconds, rotation=30, ha="right", fontsize=8)
+        ax.set(xlim=(-0.6, len(vconds) - 0.4), ylim=(-5, 105), title=variant)
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(variants) :]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("last-quarter success, %")
+    _figure_legend(fig, axes)
+    fig.suptitle(
+        "Other agents and cameras (kept for comparison): last-quarter success against the shipped stack"
+    )
+    _save(fig, path.with_name(f"{path.stem}_history.png"))
+
+
+def _last_quarter(runs: list[dict[str, Any]]) -> list[float]:
+    return [100 * r["success_by_quarter"][-1] for r in runs if r["success_by_quarter"][-1] is not None]
+
+
+def _figure_legend(fig: Any, axes: Any) -> None:
+    """One legend under the panels: every label once."""
+    seen: dict[str, Any] = {}
+    for ax in axes.flat:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(lab, h)
+    labels = sorted(seen, key=lambda lab: (not lab.startswith("seed"), lab))
+    fig.legend([seen[lab] for lab in labels], labels, loc="lower center", ncol=len(labels), fontsize=8)
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -376,8 +449,16 @@ def main() -> int:
         choices=VARIANTS,
         help="an agent or camera variant (default: configs/sim.yaml as shipped)",
     )
+    ap.add_argument(
+        "--replot", action="store_true", help="run nothing: redraw the figures from the summary JSON"
+    )
     args = ap.parse_args()
     os.chdir(ROOT)
+    if args.replot:
+        summary = json.loads((ROOT / "results" / "stack_robustness.json").read_text())
+        plot(summary["runs"], ROOT / "results" / "stack_robustness.png")
+        print("wrote results/stack_robustness.png (and _history.png)")
+        return 0
     base = compose_stack_yaml(ROOT / "configs/sim.yaml")
     apply_variant(args.variant, base)
     prefix = f"{args.variant}-" if args.variant else ""

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
 from experiments.metrics import RETURN_WINDOW
 from experiments.plan import ALGO_LABELS, ENVS, MAIN_ENVS, SPEED_ENVS, Plan
+
+DPI = 110
+MAX_WIDTH_IN = 14.5  # 1595 px at DPI: a figure fits a laptop screen (issue #48)
 
 ALGO_COLORS = {
     "adaptiveh": "tab:red",
@@ -64,7 +68,7 @@ def make_figures(plan: Plan, summary: dict[str, Any], out_dir: Path) -> list[Pat
     paths = []
     main = [e for e in MAIN_ENVS if e in plan.envs]
     if main:
-        fig, axes = plt.subplots(1, len(main), figsize=(5 * len(main), 4), squeeze=False)
+        fig, axes = plt.subplots(1, len(main), figsize=(min(5 * len(main), MAX_WIDTH_IN), 4), squeeze=False)
         for ax, env in zip(axes[0], main, strict=True):
             _plot_curves(ax, plan, summary, env)
         fig.suptitle("Learning curves, mean and 95% bootstrap interval over seeds")
@@ -140,6 +144,15 @@ def _save(fig: Any, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
+
+
+def replot(out_dir: Path) -> list[Path]:
+    """Redraw the figures from ``out_dir/summary.json`` as the bench wrote it: nothing run or aggregated."""
+    summary = json.loads((out_dir / "summary.json").read_text())
+    p = summary["plan"]
+    steps = {k: e["steps_used"] for k, e in p["envs"].items()}
+    plan = Plan([], list(p["envs"]), p["algos"], p["seeds"], steps, p["quick"])
+    return make_figures(plan, summary, out_dir)

@@ -3,10 +3,11 @@ mode, and their closed loop from the paper bench), latency, H slow vs fast."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
-from experiments.figures import _kilo_steps, _save
+from experiments.figures import MAX_WIDTH_IN, _kilo_steps, _save
 from experiments.plans import DEFAULT_METHOD, PlansPlan
 
 POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "black", "tab:gray", "tab:green", "tab:pink"]
@@ -116,7 +117,7 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
     ax.legend(fontsize=6)
 
 
-def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) -> list[Path]:
+def make_plans_figures(plan: PlansPlan | None, summary: dict[str, Any], out_dir: Path) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -126,7 +127,7 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     settings = list(summary["settings"])
     cols = min(3, len(settings))
     rows = -(-len(settings) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 4.3 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(min(5.5 * cols, MAX_WIDTH_IN), 4.3 * rows), squeeze=False)
     for ax, key in zip(axes.flat, settings, strict=False):
         _front_panel(ax, summary["settings"][key])
     for ax in list(axes.flat)[len(settings) :]:
@@ -138,7 +139,9 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     paths.append(_save(fig, out_dir / "front.png"))
 
     lat = summary["latency"]
-    fig, axes = plt.subplots(1, max(1, len(lat)), figsize=(5.5 * max(1, len(lat)), 4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, max(1, len(lat)), figsize=(min(5.5 * max(1, len(lat)), MAX_WIDTH_IN), 4), squeeze=False
+    )
     for ax, v in zip(axes[0], lat.values(), strict=False):
         colors = ["tab:purple", "tab:blue", "tab:red", "tab:orange"]
         colors = [DEFAULT_COLOR if m == DEFAULT_METHOD else colors[i] for i, m in enumerate(v["curves"])]
@@ -203,3 +206,9 @@ def make_plans_figures(plan: PlansPlan, summary: dict[str, Any], out_dir: Path) 
     fig.suptitle("AdaptiveH window H under slow vs fast drift (plan execution)")
     paths.append(_save(fig, out_dir / "h_drift.png"))
     return paths
+
+
+def replot(out_dir: Path) -> list[Path]:
+    """Redraw the figures from ``out_dir/summary.json`` as the bench wrote it: nothing run or aggregated
+    (the figures read the summary alone)."""
+    return make_plans_figures(None, json.loads((out_dir / "summary.json").read_text()), out_dir)

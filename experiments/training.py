@@ -76,7 +76,7 @@ def plot_run(log: RunLog, title: str, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     has_segments = bool(log.segments)
-    fig, axes = plt.subplots(1, 3 if has_segments else 1, figsize=(15 if has_segments else 6, 4))
+    fig, axes = plt.subplots(1, 3 if has_segments else 1, figsize=(14.5 if has_segments else 6, 4))
     axes = np.atleast_1d(axes)
     steps = [e.global_step for e in log.episodes]
     rets = np.array([e.ret for e in log.episodes])
