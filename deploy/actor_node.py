@@ -28,7 +28,7 @@ from deploy.config import StackConfig
 from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.actor import Actor
-from learner.config import AdaptiveHConfig
+from learner.config import AdaptiveHConfig, rkhs_config
 from learner.plans import Executed, OpenSegment, Plan, Played
 from learner.segments import SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot, SnapshotError
@@ -46,7 +46,7 @@ class ActorNode(Node):
         lc = settings.learner
         # The actor plays each plan at once: the learner's latency delays snapshots, not plans.
         self.env = ZenohReachEnv(self.bus, env_settings(settings))
-        self.actor = Actor(self.env, AdaptiveHConfig(**lc.agent_config()), lc.seed)
+        self.actor = Actor(self.env, rkhs_config(lc.algo, AdaptiveHConfig(**lc.agent_config())), lc.seed)
         self.out = Path(lc.checkpoint_dir) / "actor.json"
         self.handoff = lc.policy_from  # then the first plan waits for the learner's first snapshot
         self.error = ""  # why acting ended, when it did not end by a stop

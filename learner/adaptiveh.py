@@ -28,7 +28,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from learner.config import AdaptiveHConfig
+from learner.config import AdaptiveHConfig, rkhs_config
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
@@ -610,5 +610,4 @@ class RKHSFixedH(AdaptiveH):
     name = "rkhs"
 
     def __init__(self, env: gym.Env, config: AdaptiveHConfig | None = None, seed: int = 0):
-        cfg = (config or AdaptiveHConfig()).model_copy(update={"retreat": "off"})
-        super().__init__(env, cfg, seed)
+        super().__init__(env, rkhs_config(self.name, config or AdaptiveHConfig()), seed)

@@ -145,6 +145,13 @@ def _some_steps(value: int) -> int:
 GradientSteps = Annotated[int, Field(ge=-1), AfterValidator(_some_steps)]
 
 
+def rkhs_config(algo: str, config: AdaptiveHConfig) -> AdaptiveHConfig:
+    """An RKHS learner's config as ``algo`` runs it: ``rkhs``, the paper's fixed-H baseline, is AdaptiveH
+    with the retreat test off (a segment every ``fixed_h`` steps). The learner and the actor that plays
+    its segments beside the arm both take it from here, so the two cannot disagree on how segments end."""
+    return config.model_copy(update={"retreat": "off"}) if algo == "rkhs" else config
+
+
 class SB3Config(Section):
     """TD3/DDPG settings (zoo Pendulum-v1 values, ``learning_starts`` lowered: see learner/baselines.py)."""
 

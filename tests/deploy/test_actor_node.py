@@ -81,16 +81,20 @@ def _zenoh(cfg: dict) -> m.Any:
 
 
 @contextmanager
-def _acting(tmp_path: Path, agent: dict | None = None) -> Iterator[tuple[dict, Bench, str]]:
-    """robot-io (watching the actor) and the actor (``agent`` laid over the stack's agent settings), up
-    and acting; yields (config dict, bench, token). The actor has stopped (and written ``actor.json``)
-    when the block ends."""
+def _acting(
+    tmp_path: Path, agent: dict | None = None, algo: str = "adaptiveh"
+) -> Iterator[tuple[dict, Bench, str]]:
+    """robot-io (watching the actor) and the actor (``agent`` laid over the stack's agent settings, for
+    the learner ``algo``), up and acting; yields (config dict, bench, token). The actor has stopped (and
+    written ``actor.json``) when the block ends."""
     cfg = compose_stack_yaml("configs/sim.yaml")
     cfg.pop("vision")
     cfg.pop("monitor")
     cfg["name"] = unique_name("act")
     cfg["zenoh"]["hub"] = free_endpoint()
-    cfg["learner"].update(steps=100_000, checkpoint_dir=str(tmp_path / "learner"), execution="actor")
+    cfg["learner"].update(
+        steps=100_000, checkpoint_dir=str(tmp_path / "learner"), execution="actor", algo=algo
+    )
     cfg["learner"]["agent"].update(agent or {})
     token = secrets.token_urlsafe(12)
     joined: list[Bench] = []
@@ -247,3 +251,21 @@ def test_the_actor_corrects_its_plan_model_from_the_ticks_it_played(tmp_path):
     # (a plan cut before it played, a hold under load, has no start: half is a loose floor)
     assert counts["segments"] / 2 <= counts["plan_starts"] <= counts["segments"] + 1, counts
     assert counts["plan_starts_late"] <= min(counts["late_ticks"], counts["plan_starts"]), counts
+
+
+def test_the_fixed_h_learners_actor_never_retreats_and_ends_a_segment_every_fixed_h_ticks(tmp_path):
+    """``learner.algo: rkhs`` (the paper's fixed-H baseline): the actor playing its segments ends them by
+    the learner's rule, not AdaptiveH's retreat test (it once took AdaptiveH's, so the handoff bench's
+    fixed-H runs were AdaptiveH's)."""
+    with _acting(tmp_path, {"fixed_h": 7}, algo="rkhs") as (cfg, bench, token):
+        bench.wait(lambda: len(bench.transitions) > 100, 60, "100 ticks")
+        with bench.lock:
+            ticks = [(t.segment, m.label(t, "end"), t.HasField("statistic")) for t in bench.transitions]
+    ends = {end for _, end, _ in ticks}
+    assert "retreat" not in ends and "h_max" in ends, ends
+    assert not any(has_statistic for _, _, has_statistic in ticks)  # no retreat test is evaluated
+    length = {}
+    for segment, _, _ in ticks:
+        length[segment] = length.get(segment, 0) + 1
+    cut = {segment for segment, end, _ in ticks if end == "h_max"}
+    assert cut and all(length[segment] == 7 for segment in cut), {s: length[s] for s in cut}
