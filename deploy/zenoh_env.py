@@ -349,7 +349,7 @@ class ZenohReachEnv(ReachSpec):
 
         The policy sees, and is rewarded by, the commanded TCP: what its action moves at once. A streamed
         arm reaches it a few periods later (franky-sim: 3-4), and a reward on the measured hand scored
-        each action by the ones before it: learning drove the arm away from the target (docs/stack.md).
+        each action by the ones before it: learning drove the arm away from the target (docs/handoff.md).
         Distance and success are the measured hand's. On the mock the two are one (``ee_cmd = ee_pos``)."""
         with self._cond:
             state = self._state if state is None else state

@@ -1,6 +1,6 @@
 """Which CPU made each run: numpy and OpenBLAS pick their kernels by the CPU's SIMD level, and the envs
 amplify the rounding (NS CartPole and NS Pendulum most, NS Reach's long fixed-H plans too), so one seed's
-run on another CPU is another draw (docs/paper.md)."""
+run on another CPU is another draw (docs/paper_plans.md)."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ better. "Better" is a paired one-sided test on each step's prediction made befor
 (prequential): the correction is used while the forgotten mean of ``e_nominal² − e_corrected²``
 (normalised units) exceeds ``z`` of its standard errors. Where the nominal model is exact and the sensor
 noisy (NS Pendulum), a fit of noise on noisy states predicts no better, and the plans keep the nominal
-model (measured: used there, such a fit wrecked a seed; docs/learner.md).
+model (measured: used there, such a fit wrecked a seed; docs/learner_plans.md).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ a model's error accumulates smoothly (increments positively correlated or consta
 with ``w`` the fixed kernel's widths and ``κ`` as below (``2σ²``: the gap's variance under noise alone). A
 quiet sensor leaves the fixed kernel; a noisy one retreats on at most about ``α`` of ticks whose gap is
 noise; a model that errs the same way every time still makes the plan stale as its error accumulates
-(so the gap one step into a plan, which holds a step of that error, is not the floor: docs/learner.md).
+(so the gap one step into a plan, which holds a step of that error, is not the floor: docs/learner_plans.md).
 
 :class:`LearnedTolerance` standardises the gap by its own history instead. Per plan step ``i`` and state
 dimension ``d`` it keeps a running mean square ``σ̂²_{i,d}`` of the gap ``s − ŝ``, and

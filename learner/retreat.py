@@ -23,7 +23,7 @@ Exploration noise averages out; a systematic change of the gradient rotates ``G`
   Dividing by it gives the scale-free statistic ``k(s0,si) G(s0)ᵀG(si) / ‖G(s0)‖²`` and the
   threshold ``Z/2`` (capped at 1/2). It fires when the state leaves the kernel's reach of ``s0`` or
   the estimated ascent directions at ``s0`` and ``si`` disagree. Both gradients come from the current
-  field: one frozen at the segment's start destabilised learning (docs/learner.md).
+  field: one frozen at the segment's start destabilised learning (docs/learner_measurements.md).
 - ``smoothed``: the whole field, ``G_0`` when the segment opened against ``G_i`` now. At ``s'=s0`` eq.
   37 makes ``⟨G_0, G_0⟩`` equal ``Z ε``; dividing the bound ``⟨G_0, G_i⟩ ≥ Z ε / 2`` by it leaves the
   projection ratio ``⟨G_0, G_i⟩_H / ‖G_0‖²_H ≥ 1/2``. It acts as a timer: each step

@@ -136,8 +136,8 @@ def predict_reach(
     the action (``tracked_step``; the model once took the commanded step at face value and its 10-step
     predictions were off by ~7 cm, ~3 cm with the tracking, bench/reach_model.py), towards a goal held
     inside the ``workspace`` box (lo, hi) as robot-io clips it (a model without the walls predicts a
-    pinned arm moving on, and the retreat fired on that every few ticks: docs/learner.md), and the target
-    keeps its estimated velocity. It knows nothing of the target's turns: what a plan made from it
+    pinned arm moving on, and the retreat fired on that every few ticks: docs/learner_plans.md), and the
+    target keeps its estimated velocity. It knows nothing of the target's turns: what a plan made from it
     assumes, and what the retreat checks against."""
     obs = np.asarray(obs, float)
     if workspace is not None:

@@ -133,7 +133,7 @@ def test_the_plan_model_follows_the_arm_open_loop():
 def test_the_plan_model_stops_the_arm_at_the_workspace_wall_as_robot_io_does():
     """Pushed into a wall, robot-io holds the goal in its box and the arm stops there: the model must say
     so, or a plan pushing into a wall predicts motion and the retreat fires on it every few ticks (a
-    retreat storm that collapsed NS Reach seeds: docs/learner.md)."""
+    retreat storm that collapsed NS Reach seeds: docs/learner_plans.md)."""
     e = gym.make("NSReach-v0", motion="static", max_episode_steps=40).unwrapped
     obs, _ = e.reset(seed=0)
     lo, hi = e.workspace
