@@ -139,8 +139,14 @@ class TlsConfig(Section):
     connecting alike). Use ``tls/host:port`` endpoints."""
 
     ca: FilePath  # the CA certificate (PEM) that signed every identity's certificate
-    cert: FilePath = "certs/test/{identity}.pem"
-    key: FilePath = "certs/test/{identity}.key"
+    cert: FilePath = Field(
+        "certs/test/{identity}.pem",
+        description="this identity's certificate (PEM), signed by ca; {identity} is replaced by the"
+        " process's identity (learner, robot-io, ...)",
+    )
+    key: FilePath = Field(
+        "certs/test/{identity}.key", description="the private key (PEM) of cert; {identity} as in cert"
+    )
     # A listener (the router) accepts only clients with a certificate of ``ca``: mutual TLS. Access control
     # by identity needs it (the client's common name is its identity).
     mtls: bool = True
@@ -151,9 +157,16 @@ class AuthConfig(Section):
     """``zenoh.auth``: Zenoh user/password. The password is read from a file (mode 0600) or an
     environment variable, never from the config or a command line."""
 
-    user: str = Field("{identity}", min_length=1)
-    password_file: FilePath = ""  # e.g. certs/test/{identity}.password
-    password_env: str = Field("", pattern=r"^([A-Za-z_][A-Za-z0-9_]*)?$")  # the variable's name
+    user: str = Field(
+        "{identity}",
+        min_length=1,
+        description="the Zenoh user name; {identity} is replaced by the process's identity, so each part"
+        " logs in as its own user",
+    )
+    # A file holding the password (mode 0600), e.g. certs/test/{identity}.password; or password_env.
+    password_file: FilePath = ""
+    # The name of the environment variable holding the password; or password_file.
+    password_env: str = Field("", pattern=r"^([A-Za-z_][A-Za-z0-9_]*)?$")
 
     @model_validator(mode="after")
     def _one_password_source(self) -> AuthConfig:

@@ -43,11 +43,24 @@ Endpoint = Annotated[str, Field(pattern=r"^[a-z][a-z0-9-]*/.+")]
 class ZenohConfig(Section):
     """The ``zenoh:`` section."""
 
-    mode: Literal["peer", "client", "router"] = "peer"
-    connect: tuple[Endpoint, ...] = ()
-    listen: tuple[Endpoint, ...] = ()
+    mode: Literal["peer", "client", "router"] = Field(
+        "peer",
+        description="how this session joins the bus: peer (talks to the other parts directly), client"
+        " (only through a router it connects to), router (relays for others)",
+    )
+    connect: tuple[Endpoint, ...] = Field(
+        (),
+        description="endpoints this session dials at start, e.g. [tcp/192.168.1.10:7447] or a router's"
+        " tls/host:port; empty with listen empty: the loopback hub",
+    )
+    listen: tuple[Endpoint, ...] = Field(
+        (), description="endpoints this session accepts connections on, e.g. [tcp/0.0.0.0:7447]"
+    )
     hub: Endpoint = "tcp/127.0.0.1:7447"  # loopback rendezvous when connect and listen are both empty
-    multicast_scouting: bool = False
+    multicast_scouting: bool = Field(
+        False,
+        description="find other sessions by UDP multicast on the local network (off: only the endpoints)",
+    )
     # A peer that dies without closing its session (SIGKILL, power, cable) is noticed when its lease
     # expires: Zenoh's default 10 s left the arm driven by a dead learner's last chunk that long. Set on
     # every session (the lease a peer declares is what the other side waits for).
@@ -56,8 +69,10 @@ class ZenohConfig(Section):
     # Several machines (bus.security): mutual TLS, user/password, and the router's access control.
     # Paths and the user may contain {identity}: the process's own (learner, robot-io, ...).
     tls: TlsConfig | None = None
-    auth: AuthConfig | None = None
-    router: RouterConfig | None = None  # only for `adaptiveh router --config`
+    auth: AuthConfig | None = Field(
+        None, description="Zenoh user/password authentication of every session (null: none)"
+    )
+    router: RouterConfig | None = None  # the router's own settings, read only by `adaptiveh router --config`
 
     @model_validator(mode="after")
     def _secure_endpoints(self) -> ZenohConfig:

@@ -40,30 +40,60 @@ ACTOR_ALGOS = ("adaptiveh", "rkhs")  # the RKHS learners: their policy travels a
 class LearnerConfig(Section):
     """The ``learner:`` section: the learner process (``adaptiveh learn``)."""
 
-    algo: Algo = "adaptiveh"
+    algo: Algo = Field(
+        "adaptiveh",
+        description="the learning algorithm: adaptiveh (the paper's, adaptive horizon), rkhs (fixed"
+        " horizon), or a stable-baselines3 baseline (td3, ddpg, sac, ppo)",
+    )
     steps: int = Field(4000, ge=1)  # total environment steps (a resumed run counts those already done)
-    seed: int = 0
+    seed: int = Field(0, description="the learning agent's random seed (its initial policy and exploration)")
     agent: dict[str, Any] = {}  # the algorithm's hyperparameters (learner.config), checked against ``algo``
-    chunk_len: int = Field(10, ge=1)
+    chunk_len: int = Field(
+        10,
+        ge=1,
+        description="actions per chunk sent to robot-io: this step's action, then the tail played if the"
+        " next chunk is late (1: no tail)",
+    )
     # The chunk's tail after this step's action, played if the learner is late for a tick: ``hold``
     # (zero displacements) or ``policy`` (AdaptiveH's mean rolled forward). Measured: with ``policy`` a
     # late learner's transitions mix in planned actions and NS Reach did not learn over Zenoh in 2400
     # steps; with ``hold`` a late tick only costs time.
     plan: Literal["hold", "policy"] = "hold"
-    max_episode_steps: int = Field(200, ge=1)
+    max_episode_steps: int = Field(
+        200,
+        ge=1,
+        description="environment steps per episode (each one control period): the episode ends, the arm"
+        " goes home and a new target is drawn",
+    )
     # vision's tracked target, or the simulator's ground truth (tests and benchmarks only).
     target_topic: Literal["target", "sim/target_truth"] = "target"
     # Where the target moves and how fast: the learner scales its state with these, so they must match
     # the real target's range (NSReach-v0 scales with its motion preset's box and speed). Measured: with
     # the workspace as the box and 0.2 m/s, in-process NS Reach seed 0 stopped learning (0 % vs 90 %).
     target_box: Box3 = ((0.35, -0.3, 0.12), (0.65, 0.3, 0.45))
-    target_speed_max: float = Field(0.06, gt=0)
-    step_timeout_s: float = Field(2.0, gt=0)
+    target_speed_max: float = Field(
+        0.06,
+        gt=0,
+        description="the fastest the target moves (m/s): the learner scales the target's velocity in its"
+        " state by it",
+    )
+    step_timeout_s: float = Field(
+        2.0,
+        gt=0,
+        description="how long one environment step waits (seconds) for robot-io to report its chunk played;"
+        " not played by then (the arm held, paused, e-stopped), the chunk is sent again",
+    )
     # A target older than this (or reported lost) is not guessed from: the closed loop waits for a fresh
     # fix (the arm holds meanwhile: no chunk, so robot-io's watchdog stops it).
     target_timeout_s: float = Field(0.5, gt=0)
-    checkpoint_dir: str = "runs/stack/learner"
-    checkpoint_every: int = Field(500, ge=1)
+    checkpoint_dir: str = Field(
+        "runs/stack/learner",
+        description="where the learner saves its checkpoint (checkpoint.pkl) and resumes from; relative to"
+        " the working directory",
+    )
+    checkpoint_every: int = Field(
+        500, ge=1, description="save a checkpoint every this many environment steps (and at the end)"
+    )
     # A handoff: start from the policy (critic, gradient field, plan tolerance) of another run's
     # checkpoint, a file or its run folder (``adaptiveh train`` or another stack's checkpoint_dir), then
     # keep learning. Checked against this task when the stack starts (learner.provenance); a run that
@@ -124,9 +154,16 @@ class LearnerConfig(Section):
 class RecordingConfig(Section):
     """The ``recording:`` section: where MCAP files go and which topics are left out (raw frames)."""
 
-    enabled: bool = True
-    dir: str = "runs/stack/recordings"
-    exclude: tuple[str, ...] = ()
+    enabled: bool = Field(True, description="record the bus to MCAP while the stack runs (``adaptiveh up``)")
+    dir: str = Field(
+        "runs/stack/recordings",
+        description="the folder the MCAP files are written to; relative to the working directory",
+    )
+    exclude: tuple[str, ...] = Field(
+        (),
+        description="topics left out of the recording, as prefixes of the key after adaptiveh/<name>/ (e.g."
+        " camera/frame: the raw frames)",
+    )
     # Written to disk at least this often: a supervisor killed outright loses at most this much.
     flush_s: float = Field(1.0, gt=0, le=60)
     # A new file (<name>.part2.mcap, ...) after this long: the MCAP writer's index grows with each flush
@@ -139,7 +176,11 @@ class SupervisorConfig(Section):
 
     max_restarts: int = Field(3, ge=0)  # per part; the run ends when a part has used them all
     backoff_s: float = Field(1.0, gt=0)  # wait before the first restart, doubled each time
-    backoff_max_s: float = Field(30.0, gt=0)
+    backoff_max_s: float = Field(
+        30.0,
+        gt=0,
+        description="the longest wait (seconds) before a restart, however many restarts came before",
+    )
     # Linux niceness (0..19) per part: under CPU contention robot-io's control loop and the learner come
     # before the camera's rendering and the operator's pages (measured: with a hammered monitor, starved
     # robot-io ticks delayed e-stops past 2 periods).
@@ -158,13 +199,26 @@ class StackConfig(Section):
     """A whole top-level config: one robot's stack. ``vision``/``monitor`` absent: that part is not run."""
 
     name: str = Field("panda", pattern=r"^[^/*$?#]+$")  # one Zenoh key segment: adaptiveh/<name>/...
-    zenoh: ZenohConfig = ZenohConfig()
-    robot: RobotConfig = RobotConfig()
-    vision: VisionConfig | None = None
-    learner: LearnerConfig = LearnerConfig()
-    monitor: MonitorConfig | None = None
-    recording: RecordingConfig = RecordingConfig()
-    supervisor: SupervisorConfig = SupervisorConfig()
+    zenoh: ZenohConfig = Field(
+        ZenohConfig(), description="how every part joins the bus: endpoints, lease, TLS, authentication"
+    )
+    robot: RobotConfig = Field(
+        RobotConfig(), description="robot-io: the arm's backend, control rate, limits and safety"
+    )
+    vision: VisionConfig | None = Field(
+        None, description="the vision part: camera, detection, tracking, calibration (null: not run)"
+    )
+    learner: LearnerConfig = Field(
+        LearnerConfig(),
+        description="the learner process: algorithm, steps, how it drives the arm, checkpoints",
+    )
+    monitor: MonitorConfig | None = Field(
+        None, description="the operator's web page and Foxglove live view (null: not run)"
+    )
+    recording: RecordingConfig = Field(RecordingConfig(), description="the MCAP recording of the bus")
+    supervisor: SupervisorConfig = Field(
+        SupervisorConfig(), description="how ``adaptiveh up`` restarts a part that crashed"
+    )
 
     def view_limits(self) -> ViewLimits:
         """What the operator's views of this stack will plot (``monitor.view_limits``)."""

@@ -2,7 +2,8 @@
 config models so that it cannot drift from them.
 
 ``adaptiveh config reference`` rewrites the pages; tests/common/test_config_reference.py fails when a
-model changed and the pages were not regenerated. A key's description is read from the model's source:
+model changed and the pages were not regenerated, when a key has no description, and when a config model
+of the project is in no page. A key's description is read from the model's source:
 the ``#`` comment on the key's line and the comment lines directly above it; else its ``Field``
 description; else the sentence of the model's docstring that starts with the key (in double backticks)
 and a colon. Bounds are the ``Field`` constraints
@@ -354,8 +355,9 @@ def _render_table(table: Table, heading: str | None = None) -> list[str]:
 
 
 HEADER = (
-    "*Generated from the config models by `{command}`: edit the models (their `#` comments are the"
-    " descriptions), then rerun it; tests/common/test_config_reference.py fails while this page is stale.*"
+    "*Generated from the config models by `{command}`: edit the models (a key's `#` comment or its `Field`"
+    " description is its description), then rerun it; tests/common/test_config_reference.py fails while"
+    " this page is stale or a key has no description.*"
 )
 LEGEND = """\
 A key left out takes its default. An unknown key, a value of the wrong type or one outside its bounds

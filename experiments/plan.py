@@ -36,13 +36,19 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 class EnvSpec(Section):
     """One environment setting of the paper; ``threshold`` is the stated return for steps-to-threshold."""
 
-    key: str
-    env_id: str
-    preset: str
-    label: str
-    steps: int = Field(ge=1)
-    quick_steps: int = Field(ge=1)
-    threshold: float
+    key: str = Field(
+        description="the setting's name in the plan (e.g. cartpole_slow): run names and result files use it"
+    )
+    env_id: str = Field(description="the Gymnasium environment id")
+    preset: str = Field(description="the environment's non-stationarity preset (e.g. slow)")
+    label: str = Field(description="the setting's name on figures and in tables")
+    steps: int = Field(ge=1, description="environment steps per run")
+    quick_steps: int = Field(
+        ge=1, description="environment steps per run of the quick plan (a smoke test of the bench)"
+    )
+    threshold: float = Field(
+        description="the return that counts as reaching the task, for steps-to-threshold"
+    )
     config_file: str  # configs/<file>: its ``agent`` section tunes AdaptiveH and the RKHS baseline
 
 

@@ -28,13 +28,35 @@ from learner.run_summary import summarize
 class TrainSpec(Section):
     """One training run; every field can come from YAML (``--config``) or the command line."""
 
-    env: str = "NSCartPoleContinuous-v0"
-    env_kwargs: dict[str, Any] = Field(default_factory=dict)
-    algo: Algo = "adaptiveh"
-    steps: int = Field(default=20_000, ge=1)
-    seed: int = 0
-    agent: dict[str, Any] = Field(default_factory=dict)
-    checkpoint_every: int = Field(default=5_000, ge=1)
+    env: str = Field(
+        "NSCartPoleContinuous-v0",
+        description="the Gymnasium environment id (a registered one, e.g. NSCartPoleContinuous-v0,"
+        " NSPendulum-v0, NSReach-v0)",
+    )
+    env_kwargs: dict[str, Any] = Field(
+        default_factory=dict,
+        description="keyword arguments of the environment (e.g. preset: slow); the environment's seed is"
+        " seed's unless given here",
+    )
+    algo: Algo = Field(
+        "adaptiveh",
+        description="the learning algorithm: adaptiveh, rkhs (fixed horizon), or a stable-baselines3"
+        " baseline (td3, ddpg, sac, ppo)",
+    )
+    steps: int = Field(
+        default=20_000,
+        ge=1,
+        description="total environment steps of the run (a resumed run counts those already done)",
+    )
+    seed: int = Field(0, description="seeds the environment and the agent: one seed, one run")
+    agent: dict[str, Any] = Field(
+        default_factory=dict, description="the algorithm's hyperparameters, checked against algo"
+    )
+    checkpoint_every: int = Field(
+        default=5_000,
+        ge=1,
+        description="save a checkpoint every this many environment steps (and at the end)",
+    )
     # Every episode's seeded reset draws a new world (the stack's actor reseeds the arm's each episode);
     # by default only the first reset's seed counts, as in the benches (experiments.envs).
     reseed_episodes: bool = False

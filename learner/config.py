@@ -20,18 +20,45 @@ class AdaptiveHConfig(Section):
     AdaptiveH and the fixed-H learner compare at the same per-sample step whatever H is.
     """
 
-    gamma: float = Field(0.99, gt=0, lt=1)
-    alpha: float = Field(0.02, gt=0)
+    gamma: float = Field(
+        0.99, gt=0, lt=1, description="discount factor of future rewards (per environment step)"
+    )
+    alpha: float = Field(
+        0.02,
+        gt=0,
+        description="the policy's step size per sample (a segment of H samples moves the policy by alpha·H"
+        " times their mean gradient)",
+    )
     sigma: float = Field(0.3, gt=0)  # exploration std, as a fraction of the action half-range
     # Schedules, linear from sigma / alpha over schedule_steps, then constant (None: constant). The score
     # keeps sigma's Σ⁻¹, so a smaller std also shrinks the step like a natural gradient's; with the
     # annealed Σ⁻¹ the step grew as 1/std and NS Pendulum runs diverged (README, "The learner").
     sigma_final: float | None = Field(None, gt=0)
-    alpha_final: float | None = Field(None, gt=0)
-    schedule_steps: int = Field(20000, ge=1)
+    alpha_final: float | None = Field(
+        None,
+        gt=0,
+        description="alpha at the end of the schedule, reached linearly over schedule_steps (null: alpha"
+        " throughout)",
+    )
+    schedule_steps: int = Field(
+        20000,
+        ge=1,
+        description="environment steps over which sigma and alpha go linearly to sigma_final and alpha_final",
+    )
     bandwidth: Positive | list[Positive] = 0.4  # on states normalised to [-1, 1]; one or one per dimension
-    policy_budget: int = Field(300, ge=1)
-    policy_ald: float = Field(0.05, ge=0, lt=1)
+    policy_budget: int = Field(
+        300,
+        ge=1,
+        description="the most kernel centres the policy function keeps; over it, the centre that matters"
+        " least is dropped",
+    )
+    policy_ald: float = Field(
+        0.05,
+        ge=0,
+        lt=1,
+        description="a state becomes a new centre of the policy when its squared RKHS distance from the"
+        " span of the centres (ALD test) exceeds this; 0: every state",
+    )
     # value: V(s) by RLS-TD(0), the TD error is the advantage. compatible: V + the paper's compatible
     # features. q: kernel LSTD-Q on (state, action) with a product kernel (learner/critic.py).
     critic: Literal["value", "compatible", "q"] = "value"
@@ -46,10 +73,26 @@ class AdaptiveHConfig(Section):
     # from the advantage; the number is the fit's memory per step (0.999: ~1000 steps). None: plain δ.
     residual_baseline: float | None = Field(None, gt=0, lt=1)
     residual_fit: Literal["kernel_mean", "least_squares"] = "kernel_mean"  # how B(s) is fitted
-    critic_budget: int = Field(300, ge=1)
-    critic_ald: float = Field(0.05, ge=0, lt=1)
-    critic_forgetting: float = Field(0.999, gt=0, le=1)
-    critic_p0: float = Field(10.0, gt=0)
+    critic_budget: int = Field(300, ge=1, description="the most kernel centres the critic keeps")
+    critic_ald: float = Field(
+        0.05,
+        ge=0,
+        lt=1,
+        description="a state becomes a new centre of the critic when its ALD residual exceeds this; 0:"
+        " every state",
+    )
+    critic_forgetting: float = Field(
+        0.999,
+        gt=0,
+        le=1,
+        description="the critic's recursive least-squares forgetting factor per step: 1 forgets nothing,"
+        " 0.999 weighs roughly the last 1000 steps",
+    )
+    critic_p0: float = Field(
+        10.0,
+        gt=0,
+        description="the critic's initial inverse-covariance scale (P = p0·I), and the cap on its diagonal",
+    )
     critic_lambda: float = Field(0.0, ge=0, lt=1)  # the critic's eligibility trace, LSTD(λ); 0: TD(0)
     # The retreat statistic (learner/retreat.py); None: the execution's own, ``local`` in the closed loop and
     # ``plan`` in plan execution (measured: ``local`` cannot see a plan go stale; results/plans).
@@ -68,23 +111,52 @@ class AdaptiveHConfig(Section):
     # retreats on at most ``plan_false_alarm`` of ticks; ``fixed`` keeps it as it is; ``learned``
     # standardises the gap by its running mean square per plan step (a candidate, plan_kernel_scale unused).
     plan_tolerance: Literal["fixed", "learned", "noise_floor"] = "noise_floor"
-    plan_false_alarm: float = Field(0.01, gt=0, lt=0.5)
+    plan_false_alarm: float = Field(
+        0.01,
+        gt=0,
+        lt=0.5,
+        description="plan retreat with plan_tolerance noise_floor: the fraction of ticks on which sensor"
+        " noise alone may end a plan",
+    )
     # The plan's world model (learner/plan_model.py): the env's ``nominal`` one, or ``corrected`` online
     # by a linear fit of its one-step residuals over the last ``plan_model_memory`` steps.
     plan_model: Literal["nominal", "corrected"] = "nominal"
-    plan_model_memory: int = Field(1000, ge=2)
+    plan_model_memory: int = Field(
+        1000,
+        ge=2,
+        description="plan_model corrected: the environment steps over which the linear correction of the"
+        " model's one-step residuals is fitted",
+    )
     # The policy is never updated: a handed-off policy measured as it is (bench/handoff.py's "frozen").
     frozen: bool = False
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
-    h_max: int = Field(50, ge=1)
+    h_max: int = Field(
+        50,
+        ge=1,
+        description="the longest segment (environment steps) before the policy is updated, if no retreat"
+        " ends it sooner",
+    )
     fixed_h: int = Field(10, ge=1)  # segment length of the fixed-H learner (retreat off)
-    weight_decay: float = Field(1e-3, ge=0)
-    max_grad_norm: float = Field(100.0, gt=0)
+    weight_decay: float = Field(
+        1e-3,
+        ge=0,
+        description="shrinkage of the policy function per update, scaled by the step: f ← (1 -"
+        " alpha·weight_decay)·f + ...",
+    )
+    max_grad_norm: float = Field(
+        100.0, gt=0, description="each sample's policy gradient is clipped to this norm"
+    )
     # Local step size: a sample at s moves f by alpha·n0/(n0 + n(s)), n(s) the samples that fell near s
     # (forgotten at visit_memory per step; learner/critic.py visits()): averaging where data is plentiful.
     # None: the same alpha everywhere. Value and compatible critics.
     visit_step: float | None = Field(None, gt=0)
-    visit_memory: float = Field(0.9999, gt=0, le=1)
+    visit_memory: float = Field(
+        0.9999,
+        gt=0,
+        le=1,
+        description="visit_step: the factor by which visit counts are forgotten per step (0.9999: ~10 000"
+        " steps)",
+    )
     # GAE(λ) advantages for the value critic: Σ_k (γλ)^k δ_{t+k} in place of δ_t (less critic bias, more
     # variance); a sample's gradient enters the update once its weight (γλ)^k < 1 %. 0: the TD error.
     advantage_lambda: float = Field(0.0, ge=0, le=1)
@@ -92,8 +164,12 @@ class AdaptiveHConfig(Section):
     # from the last replay_window are applied again, re-scored by the critic as it stands and weighted by
     # their truncated importance ratio, at replay_step times alpha. 0: off. Closed loop, value critic.
     replay_window: int = Field(0, ge=0)
-    replay_batch: int = Field(32, ge=1)
-    replay_step: float = Field(1.0, gt=0)
+    replay_batch: int = Field(
+        32, ge=1, description="replay_window: transitions replayed at each segment update"
+    )
+    replay_step: float = Field(
+        1.0, gt=0, description="replay_window: the replayed samples' step size, as a multiple of alpha"
+    )
     # |f| past which a step no longer pushes the squashed mean outward (learner/policy.py); None: unbounded.
     # These options are off by default: NS Pendulum needs them, NS CartPole does worse with them
     # (bench/learner_diagnosis.py, configs/pendulum.yaml).
@@ -155,17 +231,34 @@ def rkhs_config(algo: str, config: AdaptiveHConfig) -> AdaptiveHConfig:
 class SB3Config(Section):
     """TD3/DDPG settings (zoo Pendulum-v1 values, ``learning_starts`` lowered: see learner/baselines.py)."""
 
-    learning_rate: float = Field(1e-3, gt=0, lt=1)
-    gamma: float = Field(0.98, gt=0, lt=1)
-    buffer_size: int = Field(200_000, ge=1)
-    learning_starts: int = Field(1_000, ge=0)
-    batch_size: int = Field(256, ge=1)
-    tau: float = Field(0.005, gt=0, le=1)
-    train_freq_episodes: int = Field(1, ge=1)
+    learning_rate: float = Field(
+        1e-3, gt=0, lt=1, description="the optimiser's learning rate (Adam), actor and critic"
+    )
+    gamma: float = Field(
+        0.98, gt=0, lt=1, description="discount factor of future rewards (per environment step)"
+    )
+    buffer_size: int = Field(200_000, ge=1, description="the replay buffer's capacity, in transitions")
+    learning_starts: int = Field(
+        1_000, ge=0, description="environment steps of random actions before training starts"
+    )
+    batch_size: int = Field(256, ge=1, description="transitions per gradient step")
+    tau: float = Field(
+        0.005, gt=0, le=1, description="soft update rate of the target networks (1: copied each step)"
+    )
+    train_freq_episodes: int = Field(1, ge=1, description="train after every this many episodes")
     gradient_steps: GradientSteps = -1  # -1: as many as env steps since the last training
-    noise_std: float = Field(0.1, ge=0)
-    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [400, 300], min_length=1)
-    torch_threads: int = Field(1, ge=1)
+    noise_std: float = Field(
+        0.1,
+        ge=0,
+        description="standard deviation of the Gaussian exploration noise, as a fraction of the action"
+        " range's half-width",
+    )
+    net_arch: list[Annotated[int, Field(ge=1)]] = Field(
+        default_factory=lambda: [400, 300],
+        min_length=1,
+        description="hidden layer sizes of the actor and critic networks",
+    )
+    torch_threads: int = Field(1, ge=1, description="CPU threads PyTorch may use (torch.set_num_threads)")
     # Plan execution (learner/baselines_plan.py): every plan_h steps and at each episode start, plan
     # plan_h actions over the env's nominal model and play them open loop. 1: the closed loop.
     plan_h: int = Field(1, ge=1)
@@ -174,38 +267,80 @@ class SB3Config(Section):
 class SACConfig(Section):
     """SAC settings: the zoo's Pendulum-v1 (lr 1e-3) and SB3's defaults (see the module docstring)."""
 
-    learning_rate: float = Field(1e-3, gt=0, lt=1)
-    gamma: float = Field(0.99, gt=0, lt=1)
-    buffer_size: int = Field(1_000_000, ge=1)
-    learning_starts: int = Field(100, ge=0)
-    batch_size: int = Field(256, ge=1)
-    tau: float = Field(0.005, gt=0, le=1)
+    learning_rate: float = Field(
+        1e-3,
+        gt=0,
+        lt=1,
+        description="the optimiser's learning rate (Adam), actor, critics and entropy coefficient",
+    )
+    gamma: float = Field(
+        0.99, gt=0, lt=1, description="discount factor of future rewards (per environment step)"
+    )
+    buffer_size: int = Field(1_000_000, ge=1, description="the replay buffer's capacity, in transitions")
+    learning_starts: int = Field(
+        100, ge=0, description="environment steps of random actions before training starts"
+    )
+    batch_size: int = Field(256, ge=1, description="transitions per gradient step")
+    tau: float = Field(
+        0.005, gt=0, le=1, description="soft update rate of the target networks (1: copied each step)"
+    )
     train_freq: int = Field(1, ge=1)  # env steps between trainings
     gradient_steps: GradientSteps = 1  # per training; -1: as many as env steps since the last one
-    ent_coef: Literal["auto"] | Annotated[float, Field(gt=0)] = "auto"
-    use_sde: bool = False
-    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [256, 256], min_length=1)
-    torch_threads: int = Field(1, ge=1)
+    ent_coef: Literal["auto"] | Annotated[float, Field(gt=0)] = Field(
+        "auto",
+        description="the entropy coefficient: auto (learned towards a target entropy) or a fixed number",
+    )
+    use_sde: bool = Field(
+        False,
+        description="explore with generalised state-dependent noise (gSDE) instead of independent noise per"
+        " step",
+    )
+    net_arch: list[Annotated[int, Field(ge=1)]] = Field(
+        default_factory=lambda: [256, 256],
+        min_length=1,
+        description="hidden layer sizes of the actor and critic networks",
+    )
+    torch_threads: int = Field(1, ge=1, description="CPU threads PyTorch may use (torch.set_num_threads)")
     plan_h: int = Field(1, ge=1)  # plan execution, as SB3Config's (1: the closed loop)
 
 
 class PPOConfig(Section):
     """PPO settings: the zoo's tuned Pendulum-v1 values with one env (see the module docstring)."""
 
-    learning_rate: float = Field(1e-3, gt=0, lt=1)
+    learning_rate: float = Field(1e-3, gt=0, lt=1, description="the optimiser's learning rate (Adam)")
     n_steps: int = Field(1024, ge=2)  # env steps per rollout (one env)
-    batch_size: int = Field(64, ge=2)
-    n_epochs: int = Field(10, ge=1)
-    gamma: float = Field(0.9, gt=0, lt=1)
-    gae_lambda: float = Field(0.95, ge=0, le=1)
-    clip_range: float = Field(0.2, gt=0)
-    ent_coef: float = Field(0.0, ge=0)
-    vf_coef: float = Field(0.5, ge=0)
-    max_grad_norm: float = Field(0.5, gt=0)
-    use_sde: bool = True
-    sde_sample_freq: int = Field(4, ge=-1)
-    net_arch: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [64, 64], min_length=1)
-    torch_threads: int = Field(1, ge=1)
+    batch_size: int = Field(64, ge=2, description="transitions per minibatch")
+    n_epochs: int = Field(10, ge=1, description="passes over each rollout")
+    gamma: float = Field(
+        0.9, gt=0, lt=1, description="discount factor of future rewards (per environment step)"
+    )
+    gae_lambda: float = Field(
+        0.95,
+        ge=0,
+        le=1,
+        description="λ of the generalised advantage estimate (0: one-step TD error, 1: Monte Carlo)",
+    )
+    clip_range: float = Field(0.2, gt=0, description="the clipping range of the policy's probability ratio")
+    ent_coef: float = Field(0.0, ge=0, description="weight of the entropy bonus in the loss")
+    vf_coef: float = Field(0.5, ge=0, description="weight of the value function's loss")
+    max_grad_norm: float = Field(0.5, gt=0, description="gradients are clipped to this global norm")
+    use_sde: bool = Field(
+        True,
+        description="explore with generalised state-dependent noise (gSDE) instead of independent noise per"
+        " step",
+    )
+    sde_sample_freq: int = Field(
+        4,
+        ge=-1,
+        description="use_sde: draw new exploration noise every this many steps (-1: only at the start of"
+        " each rollout)",
+    )
+    net_arch: list[Annotated[int, Field(ge=1)]] = Field(
+        default_factory=lambda: [64, 64],
+        min_length=1,
+        description="hidden layer sizes of the policy and value networks",
+    )
+    torch_threads: int = Field(1, ge=1, description="CPU threads PyTorch may use (torch.set_num_threads)")
 
 
 AGENT_CONFIGS: dict[str, type[AdaptiveHConfig] | type[SB3Config] | type[SACConfig] | type[PPOConfig]] = {

@@ -69,9 +69,13 @@ class Server(ThreadingHTTPServer):
 class MonitorConfig(Section):
     """The ``monitor:`` section."""
 
-    host: str = "127.0.0.1"
-    port: int = Field(8765, ge=0, le=65535)  # 0: any free port
-    history: int = Field(600, ge=10)  # points kept per plot
+    host: str = Field(
+        "127.0.0.1",
+        description="the address the monitor's web page (and Foxglove live view) listens on; 127.0.0.1:"
+        " this machine only, 0.0.0.0: every interface",
+    )
+    port: int = Field(8765, ge=0, le=65535)  # the web page's TCP port; 0: any free port
+    history: int = Field(600, ge=10)  # points kept per plot on the web page
     # Foxglove WebSocket live view on ``host`` (monitor.foxglove.live); 0: any free port; null: off
     foxglove_port: int | None = Field(8766, ge=0, le=65535)
 

@@ -75,11 +75,17 @@ class TargetMotion(Section):
     speed swings. The target stays in ``box`` (lo xyz, hi xyz), reflected at its walls.
     """
 
-    speed_min: float = Field(0.02, ge=0)
-    speed_max: float = 0.06
-    speed_period: float = Field(8.0, gt=0)
-    turn_rate: float = Field(0.6, ge=0)
-    box: Box3 = ((0.35, -0.3, 0.12), (0.65, 0.3, 0.45))
+    speed_min: float = Field(0.02, ge=0, description="the target's slowest speed (m/s)")
+    speed_max: float = Field(0.06, description="the target's fastest speed (m/s); at least speed_min")
+    speed_period: float = Field(
+        8.0, gt=0, description="the period (seconds) of the speed's swing between speed_min and speed_max"
+    )
+    turn_rate: float = Field(0.6, ge=0, description="how fast the heading drifts (rad/s, rms)")
+    box: Box3 = Field(
+        ((0.35, -0.3, 0.12), (0.65, 0.3, 0.45)),
+        description="the box (lo xyz, hi xyz; metres, robot base frame) the target stays in, reflected at"
+        " its walls",
+    )
 
     @model_validator(mode="after")
     def _min_below_max(self) -> TargetMotion:

@@ -16,16 +16,23 @@ from common.config import Section
 
 
 class DriftConfig(Section):
-    base: float
-    low: float
-    high: float
-    amplitude: float = Field(0.0, ge=0)
+    base: float = Field(description="the signal's value before any drift; within [low, high]")
+    low: float = Field(description="the signal never goes below this")
+    high: float = Field(description="the signal never goes above this")
+    amplitude: float = Field(0.0, ge=0, description="amplitude of the sine wave added to base")
     period: int = Field(10_000, ge=1)  # steps
-    walk_std: float = Field(0.0, ge=0)
+    walk_std: float = Field(
+        0.0,
+        ge=0,
+        description="standard deviation of the reflected random walk's step, per environment step (0: no"
+        " walk)",
+    )
     jump_every: int = Field(0, ge=0)  # 0: no jumps
-    jump_size: float = Field(0.0, ge=0)
+    jump_size: float = Field(
+        0.0, ge=0, description="each jump offset is drawn uniformly from [-jump_size, jump_size]"
+    )
     step_at: int = Field(0, ge=0)  # one abrupt change of ``step_size`` at this step (0: none)
-    step_size: float = 0.0
+    step_size: float = Field(0.0, description="the abrupt change added once the clock reaches step_at")
 
     @model_validator(mode="after")
     def _base_in_band(self) -> DriftConfig:

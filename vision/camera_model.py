@@ -15,12 +15,16 @@ from common.config import Section, Vec3
 class Intrinsics(Section):
     """Pinhole model in OpenCV convention: pixel (u, v) centre at integer coordinates, v down."""
 
-    width: int = Field(640, ge=8, le=8192)
-    height: int = Field(480, ge=8, le=8192)
-    fx: float = Field(615.0, gt=0)
-    fy: float = Field(615.0, gt=0)
-    cx: float = 319.5
-    cy: float = 239.5
+    width: int = Field(640, ge=8, le=8192, description="image width in pixels")
+    height: int = Field(480, ge=8, le=8192, description="image height in pixels")
+    fx: float = Field(615.0, gt=0, description="focal length along x, in pixels")
+    fy: float = Field(615.0, gt=0, description="focal length along y, in pixels")
+    cx: float = Field(
+        319.5, description="principal point's x (pixels, from the left image edge; pixel centres at integers)"
+    )
+    cy: float = Field(
+        239.5, description="principal point's y (pixels, from the top image edge; pixel centres at integers)"
+    )
 
     @model_validator(mode="after")
     def _principal_point_inside(self) -> Intrinsics:
@@ -54,8 +58,10 @@ class Pose(Section):
     y down, z along the optical axis) to the robot base frame.
     """
 
-    position: Vec3 = (0.0, 0.0, 0.0)
-    quaternion: Annotated[tuple[float, ...], Field(min_length=4, max_length=4)] = (0.0, 0.0, 0.0, 1.0)
+    position: Vec3 = Field((0.0, 0.0, 0.0), description="translation (x, y, z) in metres")
+    quaternion: Annotated[tuple[float, ...], Field(min_length=4, max_length=4)] = Field(
+        (0.0, 0.0, 0.0, 1.0), description="rotation as a unit quaternion (x, y, z, w); normalised when loaded"
+    )
 
     @field_validator("quaternion")
     @classmethod

@@ -35,14 +35,42 @@ class DetectionConfig(Section):
         (0, 120, 60, 8, 255, 255),
         (172, 120, 60, 180, 255, 255),
     )
-    min_area_px: int = Field(12, ge=1)
-    morph_kernel: int = Field(3, ge=0)
-    depth_patch: int = Field(9, ge=1)
-    min_depth: float = Field(0.1, gt=0)
-    max_depth: float = 4.0
+    min_area_px: int = Field(
+        12,
+        ge=1,
+        description="the smallest blob (pixels of the mask) taken for the target; a smaller one is no"
+        " detection",
+    )
+    morph_kernel: int = Field(
+        3,
+        ge=0,
+        description="side (pixels) of the elliptic kernel that opens then closes the colour mask, removing"
+        " specks and filling holes; 0 or 1: none",
+    )
+    depth_patch: int = Field(
+        9,
+        ge=1,
+        description="the largest side (pixels) of the square around the blob's centroid whose median valid"
+        " depth is the target's depth (smaller for a small blob)",
+    )
+    min_depth: float = Field(
+        0.1, gt=0, description="depth readings nearer than this (metres) are taken as invalid"
+    )
+    max_depth: float = Field(
+        4.0, description="depth readings farther than this (metres) are taken as invalid; above min_depth"
+    )
     min_valid_fraction: float = Field(0.2, gt=0, le=1)  # of the patch's mask pixels that must have depth
-    target_shape: Literal["box", "sphere", "point"] = "box"
-    target_size: float = Field(0.025, ge=0)
+    target_shape: Literal["box", "sphere", "point"] = Field(
+        "box",
+        description="the target's shape, to go from the surface the camera sees to its centre: box (faces"
+        " aligned to the base axes), sphere, or point",
+    )
+    target_size: float = Field(
+        0.025,
+        ge=0,
+        description="the box's half-extent or the sphere's radius (metres): how far the centre lies behind"
+        " the seen surface",
+    )
 
     @field_validator("hsv_ranges")
     @classmethod
@@ -71,31 +99,62 @@ class TrackingConfig(Section):
     """
 
     accel_sigma: float = Field(0.4, gt=0)
-    measurement_sigma: float = Field(0.004, gt=0)
+    measurement_sigma: float = Field(
+        0.004,
+        gt=0,
+        description="standard deviation of one detection's 3D position (metres): the filter's measurement"
+        " noise",
+    )
     lost_after_s: float = Field(0.3, gt=0)
     gate_sigma: float = Field(6.0, gt=0)
-    max_dt: float = Field(0.5, gt=0)
+    max_dt: float = Field(
+        0.5,
+        gt=0,
+        description="the longest time (seconds) the filter predicts over in one step; a longer gap is"
+        " predicted as this long",
+    )
     reacquire_after: int = Field(2, ge=1)
-    max_speed: float = Field(1.0, gt=0)
+    max_speed: float = Field(
+        1.0,
+        gt=0,
+        description="the fastest the target may move (m/s) between the agreeing detections that restart a"
+        " track (reacquire_after)",
+    )
 
 
 class AnnotatedConfig(Section):
     """The downscaled annotated image for the monitor."""
 
-    rate_hz: float = Field(2.0, ge=0)
-    width: int = Field(320, ge=16)
-    jpeg_quality: int = Field(70, ge=1, le=100)
+    rate_hz: float = Field(
+        2.0, ge=0, description="annotated images per second sent to the monitor (camera/annotated); 0: none"
+    )
+    width: int = Field(
+        320,
+        ge=16,
+        description="the annotated image's width in pixels (its height keeps the camera's aspect ratio)",
+    )
+    jpeg_quality: int = Field(
+        70, ge=1, le=100, description="JPEG quality of the annotated image, 1 (smallest) to 100 (best)"
+    )
 
 
 class CalibrationConfig(Section):
     """The ChArUco board carried by the hand for extrinsics calibration."""
 
-    dictionary: str = "DICT_4X4_50"
-    squares_x: int = Field(5, ge=3)
-    squares_y: int = Field(5, ge=3)
-    square_length: float = 0.03
-    marker_length: float = Field(0.022, gt=0)
-    min_corners: int = Field(6, ge=4)
+    dictionary: str = Field(
+        "DICT_4X4_50", description="the board's ArUco dictionary, by OpenCV's name (cv2.aruco.DICT_...)"
+    )
+    squares_x: int = Field(5, ge=3, description="the board's number of chessboard squares along x")
+    squares_y: int = Field(5, ge=3, description="the board's number of chessboard squares along y")
+    square_length: float = Field(
+        0.03, description="side of one chessboard square as printed (metres); measure the printed board"
+    )
+    marker_length: float = Field(
+        0.022, gt=0, description="side of one ArUco marker as printed (metres); below square_length"
+    )
+    min_corners: int = Field(
+        6, ge=4, description="ChArUco corners an image needs to count as a view of the board"
+    )
 
     @model_validator(mode="after")
     def _marker_inside_square(self) -> CalibrationConfig:
@@ -107,16 +166,38 @@ class CalibrationConfig(Section):
 class VisionConfig(Section):
     """The whole ``vision:`` section."""
 
-    camera: Literal["sim", "frames", "realsense"] = "sim"
-    rate_hz: float = Field(15.0, gt=0, le=240)  # the sim camera's frame rate
-    intrinsics: Intrinsics = Intrinsics()
-    extrinsics: Pose = Pose()
-    sim: SimCameraConfig = SimCameraConfig()
-    realsense: RealSenseConfig = RealSenseConfig()
-    detection: DetectionConfig = DetectionConfig()
-    tracking: TrackingConfig = TrackingConfig()
-    annotated: AnnotatedConfig = AnnotatedConfig()
-    calibration: CalibrationConfig = CalibrationConfig()
+    camera: Literal["sim", "frames", "realsense"] = Field(
+        "sim",
+        description="where frames come from: sim (renders a replica of the simulated world), realsense (an"
+        " Intel RealSense device), frames (the camera/frame topic, published by another"
+        " process)",
+    )
+    rate_hz: float = Field(15.0, gt=0, le=240)  # the sim camera's frame rate (Hz)
+    intrinsics: Intrinsics = Field(
+        Intrinsics(), description="the simulated camera's lens (a RealSense reports its own)"
+    )
+    extrinsics: Pose = Field(
+        Pose(),
+        description="where the camera is: the calibrated camera-to-base pose (``adaptiveh calibrate``"
+        " writes it) that maps detections into the robot base frame",
+    )
+    sim: SimCameraConfig = Field(SimCameraConfig(), description="the simulated camera (camera sim)")
+    realsense: RealSenseConfig = Field(
+        RealSenseConfig(), description="the RealSense device (camera realsense)"
+    )
+    detection: DetectionConfig = Field(
+        DetectionConfig(), description="how the target is found in a frame: colour segmentation and depth"
+    )
+    tracking: TrackingConfig = Field(
+        TrackingConfig(),
+        description="the Kalman filter that smooths the target's position and estimates its velocity",
+    )
+    annotated: AnnotatedConfig = Field(
+        AnnotatedConfig(), description="the downscaled, annotated image the monitor shows"
+    )
+    calibration: CalibrationConfig = Field(
+        CalibrationConfig(), description="the ChArUco board used by ``adaptiveh calibrate``"
+    )
 
     def sim_pose(self) -> Pose:
         """Where the simulated camera really is (ground truth for rendering)."""

@@ -26,23 +26,51 @@ class FrankaConfig(Section):
 
     ip: str = "172.16.0.2"  # the FCI address (franky-sim: the loopback address it prints)
     realtime: Literal["enforce", "ignore"] = "ignore"  # libfranka RealtimeConfig (enforce on a PREEMPT_RT PC)
-    stream: Literal["velocity", "rest"] = "velocity"
+    stream: Literal["velocity", "rest"] = Field(
+        "velocity",
+        description="how each period's IK target is sent: velocity (blended into one continuous motion) or"
+        " rest (each waypoint approached to a stop)",
+    )
     # franky's relative dynamics factor (velocity, acceleration, jerk) for the streamed motions; the IK
     # already bounds joint speed by robot.velocity_scale.
     dynamics: tuple[float, float, float] = (1.0, 0.3, 0.3)
-    home_dynamics: float = Field(0.15, gt=0, le=1)  # reset's point-to-point move home
+    home_dynamics: float = Field(0.15, gt=0, le=1)  # franky's dynamics factor of reset's move home
     # mlockall at connect (robot_io/backends/memory_lock.py): no page fault stalls the 1 kHz loop. It needs
     # CAP_IPC_LOCK or `ulimit -l unlimited`; refused: fatal under realtime: enforce, else a warning.
     lock_memory: bool = False
-    lower_torque_thresholds: Joints = (20.0,) * 7
-    upper_torque_thresholds: Joints = (40.0,) * 7
-    lower_force_thresholds: Wrench = (10.0,) * 6
-    upper_force_thresholds: Wrench = (20.0,) * 6
-    joint_impedance: Joints = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)
+    lower_torque_thresholds: Joints = Field(
+        (20.0,) * 7,
+        description="per joint, the external torque (Nm) above which libfranka reports a contact"
+        " (set_collision_behavior)",
+    )
+    upper_torque_thresholds: Joints = Field(
+        (40.0,) * 7,
+        description="per joint, the external torque (Nm) above which libfranka stops the arm with a"
+        " collision reflex",
+    )
+    lower_force_thresholds: Wrench = Field(
+        (10.0,) * 6,
+        description="the external Cartesian force (N: x, y, z) and torque (Nm: x, y, z) above which"
+        " libfranka reports a contact",
+    )
+    upper_force_thresholds: Wrench = Field(
+        (20.0,) * 6,
+        description="the external Cartesian force (N: x, y, z) and torque (Nm: x, y, z) above which"
+        " libfranka stops the arm with a collision reflex",
+    )
+    joint_impedance: Joints = Field(
+        (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0),
+        description="stiffness of libfranka's internal joint impedance controller, per joint (Nm/rad)",
+    )
     # Faults recovered without the operator (libfranka error names, or ``connection_lost``), at most
     # ``auto_recover_limit`` times until the operator's next release; anything else holds for a release.
     auto_recover: tuple[str, ...] = ("communication_constraints_violation",)
-    auto_recover_limit: int = Field(3, ge=0)
+    auto_recover_limit: int = Field(
+        3,
+        ge=0,
+        description="how many times the faults in auto_recover are recovered without the operator until the"
+        " operator's next release (0: never)",
+    )
     # franky-sim only: robot-io scripts a target (robot.target_motion) and publishes it on sim/target_truth,
     # since no camera sees the simulator's world.
     simulated_target: bool = False

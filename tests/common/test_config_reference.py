@@ -1,18 +1,23 @@
-"""The configuration reference (docs/reference/) says what the config models say now, and lists every key
-of every model a user writes in YAML. After changing a model: ``adaptiveh config reference``."""
+"""The configuration reference (docs/reference/) says what the config models say now, lists every key of
+every model a user writes in YAML, each with a description, and every config model of the project is on
+its pages. After changing a model: ``adaptiveh config reference``."""
 
 from __future__ import annotations
 
 import argparse
+import ast
+import importlib
 import re
+import tomllib
 import typing
+from pathlib import Path
 
 import pytest
 from pydantic import BaseModel, Field
 
 from deploy.commands.config import reference
-from deploy.config import RecordingConfig, StackConfig
-from deploy.config_reference import COMMAND, REFERENCE_DIR, render_pages, stale_pages
+from deploy.config import RecordingConfig, StackConfig, SupervisorConfig
+from deploy.config_reference import COMMAND, REFERENCE_DIR, ROOT, description, render_pages, stale_pages
 from experiments.training import TrainSpec
 from learner.config import AGENT_CONFIGS
 
@@ -97,6 +102,119 @@ def test_the_key_check_sees_a_missing_row(pages):
     assert _missing(without) == ["robot.franka.dynamics"]
     sac_gone = {name: text.replace("for sac", "for nothing") for name, text in pages.items()}
     assert _missing(sac_gone) == [f"{key} (sac)" for key in _keys(AGENT_CONFIGS["sac"], "learner.agent")]
+
+
+# -- every key has a description -------------------------------------------------------------------
+
+
+def undescribed(pages: dict[str, str]) -> list[str]:
+    """The keys whose row has an empty description."""
+    out = []
+    for text in pages.values():
+        for line in text.splitlines():
+            if line.startswith("| `"):
+                cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)]
+                if not cells[5]:
+                    out.append(cells[1].strip("`"))
+    return out
+
+
+def test_every_key_has_a_description(pages):
+    assert not undescribed(pages), (
+        f"keys without a description: {undescribed(pages)}; give each a `#` comment or a"
+        f" Field(description=...), then run `{COMMAND}`"
+    )
+
+
+class _Supervisor(SupervisorConfig):
+    grace_s: float = 1.0
+
+
+class _Undescribed(StackConfig):
+    supervisor: _Supervisor = _Supervisor()  # described: only grace_s is not
+
+
+def test_the_description_check_sees_a_key_without_one(pages):
+    assert undescribed(render_pages(stack=_Undescribed)) == ["supervisor.grace_s"]
+
+
+# -- every config model of the project is in the reference -----------------------------------------
+
+# The config models that no YAML file holds, so no page lists them; why not.
+NOT_READ_FROM_YAML = {
+    "experiments/plan.py:EnvSpec": "the paper bench's settings: a table in code",
+    "sim/panda_scene.py:TargetMotion": "the target's motions: a config names a preset (robot.target_motion)",
+    "sim/schedules.py:DriftConfig": "NS CartPole's and NS Pendulum's drift presets; env_kwargs name one",
+}
+
+
+def _packages(root: Path = ROOT) -> tuple[str, ...]:
+    """The project's packages, as pyproject.toml lists them for setuptools."""
+    found = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    return tuple(name.rstrip("*") for name in found["include"])
+
+
+def config_models(root: Path = ROOT, packages: tuple[str, ...] | None = None) -> list[str]:
+    """Every config model (a subclass of ``common.config.Section``, however indirect) declared in the
+    project's packages, as ``path:Class``; read from the source, nothing imported."""
+    classes = []
+    for package in packages or _packages(root):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ClassDef):
+                    bases = {getattr(b, "id", None) or getattr(b, "attr", "") for b in node.bases}
+                    classes.append((f"{path.relative_to(root).as_posix()}:{node.name}", node.name, bases))
+    names = {"Section"}
+    while True:
+        more = {name for _, name, bases in classes if names & bases} - names
+        if not more:
+            break
+        names |= more
+    return sorted(where for where, _, bases in classes if names & bases)
+
+
+def _on_a_page(where: str, pages: dict[str, str]) -> bool:
+    path, name = where.split(":")
+    return f"`{name}` (`{path}`)" in "\n".join(pages.values())
+
+
+def unlisted(models: list[str], pages: dict[str, str]) -> list[str]:
+    """The config models on no page of the reference (but those no YAML file holds)."""
+    return [where for where in models if where not in NOT_READ_FROM_YAML and not _on_a_page(where, pages)]
+
+
+def test_every_config_model_is_in_the_reference(pages):
+    models = config_models()
+    assert len(models) >= 30 and "deploy/config.py:StackConfig" in models
+    assert not unlisted(models, pages), (
+        f"config models in no page of the reference: {unlisted(models, pages)}; reach them from a stack"
+        f" or task config (then run `{COMMAND}`), or say in NOT_READ_FROM_YAML why no YAML holds them"
+    )
+    for where in NOT_READ_FROM_YAML:  # each exception is a model, on no page
+        assert where in models and not _on_a_page(where, pages), where
+
+
+def test_the_models_no_yaml_holds_have_descriptions_too():
+    for where in NOT_READ_FROM_YAML:
+        path, name = where.split(":")
+        model = getattr(importlib.import_module(path.removesuffix(".py").replace("/", ".")), name)
+        assert all(description(model, key) for key in model.model_fields), where
+
+
+def test_the_model_check_sees_a_new_model(pages, tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "extra.py").write_text(
+        "from common.config import Section\n"
+        "import common.config as cc\n\n"
+        "class Extra(Section):\n    x: int = 1\n\n"
+        "class MoreExtra(Extra):\n    y: int = 2\n\n"
+        "class Qualified(cc.Section):\n    z: int = 3\n\n"
+        "class NotAConfig:\n    pass\n"
+    )
+    models = config_models(tmp_path, ("pkg",))
+    assert models == ["pkg/extra.py:Extra", "pkg/extra.py:MoreExtra", "pkg/extra.py:Qualified"]
+    assert unlisted(models, pages) == models
+    assert unlisted(["robot_io/config.py:RobotConfig", "experiments/plan.py:EnvSpec"], pages) == []
 
 
 # -- a stale page fails ----------------------------------------------------------------------------
