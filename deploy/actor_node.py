@@ -5,7 +5,8 @@ It runs where robot-io runs and holds the newest policy snapshot the learner pub
 ``bad_message`` safety event while the old one keeps running). Each segment it plans from the state the
 arm is in (``learner.actor.Actor``), plays the plan through robot-io (``deploy.zenoh_env``, plan
 execution), evaluates the retreat test at every tick and re-plans at once when it fails, at the plan's
-end or at the episode's end. Every tick goes to the learner on ``stream/transition`` with how its
+end or at the episode's end: the segment loop ``learner.acting.SegmentLoop``, as in-process plan
+execution runs it. Every tick goes to the learner on ``stream/transition`` with how its
 segment stands; the learner learns and publishes snapshots when it is ready, so learner latency
 delays improvement, not control, and a stopped or restarting learner stops nothing here.
 """
@@ -27,10 +28,10 @@ from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
 from deploy.policy_wire import snapshot_from_message
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
+from learner.acting import SegmentLoop, Tick
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig, rkhs_config
-from learner.plans import Executed, OpenSegment, Plan, Played
-from learner.segments import SegmentEnd, segment_end
+from learner.segments import SegmentEnd
 from learner.snapshot import PolicySnapshot, SnapshotError
 
 log = logging.getLogger(__name__)
@@ -53,11 +54,16 @@ class ActorNode(Node):
         self._lock = threading.Lock()
         self._offered: PolicySnapshot | None = None  # the newest accepted snapshot, taken at the next segment
         self._episode_seed = lc.seed
-        self.segment = OpenSegment()  # the segment in play (and the plans that may still be playing)
-        self.counts = {"steps": 0, "episodes": 0, "segments": 0, "retreats": 0, "snapshots": 0, "refused": 0}
-        # Plans whose first action played, those that began ticks after the state they were planned from
-        # (the ticks between played the plan before's tail or a hold), and those ticks in all.
-        self.starts = {"plan_starts": 0, "plan_starts_late": 0, "late_ticks": 0}
+        # The segment loop; a plan is made from the newest tick only: ticks that played while this process
+        # was held up (a stall, a loaded machine) are streamed first, never planned from.
+        self.loop = SegmentLoop(
+            self.actor,
+            self.env,
+            self.actor.judge,
+            ready=lambda: not self.env.backlog(),
+            before_plan=self._take_offered,
+        )
+        self.counts = {"steps": 0, "episodes": 0, "snapshots": 0, "refused": 0}
         self._refusals = Throttle("refused snapshots", EVENT_EVERY_S)
         self._pub_transition = self.bus.publisher(m.TRANSITIONS)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
@@ -146,84 +152,28 @@ class ActorNode(Node):
             time.sleep(0.05)
 
     def _episode(self) -> None:
-        obs, info = self.env.reset(seed=self._episode_seed)
+        self.loop.reset(seed=self._episode_seed)
         self._episode_seed += 1
         episode = self.counts["episodes"]
-        seg = self.segment
-        seg.new_episode()
-        tick = None  # of ``obs``: the plan model learns from consecutive ticks only (an outage skips some)
-        seen = planned_from = info.get("tick")  # the tick of ``obs``; of the state the plan was made from
         while not self.stopping:
-            # A plan is made from the newest tick only: ticks that played while this process was held up
-            # (a stall, a loaded machine) are streamed first, never planned from.
-            if seg.plan is None and not self.env.backlog():
-                self._take_offered()
-                seg.open(self.actor.plan(obs, self.counts["segments"], seg.opened_by))
-                planned_from = seen
-                self.env.send(seg.plan)
-            step = self.env.advance()
-            if step.plan_id != -1 and tick is not None and step.info.get("tick") == tick + 1:
-                self.actor.model.observe(obs, step.action, step.obs)  # what the world did with it
-            played = seg.tick(step)
-            if played.current and step.index == 0:
-                self._plan_started(played.source, obs, step.info.get("tick"), planned_from, seen)
-            tick = seen = step.info.get("tick")
-            stat, end = self._judge(step, played)
-            self._publish(episode, obs, step, stat, end, played)
+            tick = self.loop.tick()
+            self._publish(episode, tick)
             self._report_held_back()
             self.counts["steps"] += 1
-            if end != SegmentEnd.OPEN:
-                self.counts["segments"] += 1
-                self.counts["retreats"] += end == SegmentEnd.RETREAT
-                seg.close(end)
-            if step.terminated or step.truncated:
+            if tick.episode_over:
                 self.counts["episodes"] += 1
                 return
-            obs = step.obs
 
-    def _plan_started(
-        self, plan: Plan, obs: np.ndarray, tick: int | None, planned_from: int | None, before: int | None
-    ) -> None:
-        """``plan``'s first action played at ``tick``. When ticks played between the state it was planned
-        from (``planned_from``) and it, the actor re-anchors it at ``obs``, the state that action met (of
-        tick ``before``; consecutive ticks only)."""
-        if tick is None or planned_from is None:
-            return
-        late = tick - planned_from - 1
-        self.starts["plan_starts"] += 1
-        if late > 0:
-            self.starts["plan_starts_late"] += 1
-            self.starts["late_ticks"] += late
-            if before == tick - 1:
-                self.actor.anchor(plan, obs)
-
-    def _judge(self, step: Executed, played: Played) -> tuple[float | None, SegmentEnd]:
-        """(the retreat statistic, how the segment stands after ``step``): by the rules ``AdaptiveH``
-        closes one in-process with (``learner.segments.segment_end``)."""
-        stat = None
-        if played.current:
-            stat = self.actor.statistic(step.index + 1, played.predicted(step), step.obs)
-        ticks, limit = self.segment.ticks, self.actor.segment_limit
-        episode_over = step.terminated or step.truncated
-        return stat, segment_end(self.actor.retreats(stat), ticks, limit, episode_over, played.plan_gone)
-
-    def _publish(
-        self,
-        episode: int,
-        obs: np.ndarray,
-        step: Executed,
-        stat: float | None,
-        end: SegmentEnd,
-        played: Played,
-    ) -> None:
+    def _publish(self, episode: int, tick: Tick) -> None:
+        step, played = tick.step, tick.played
         raw, source = played.raw(step), played.source
         noise = source.noise[step.index] if source is not None else np.zeros_like(raw)  # a hold: no draw
         predicted = played.predicted(step)
         msg = m.Transition(
             step=self.counts["steps"],
             episode=episode,
-            segment=self.counts["segments"],
-            obs=np.asarray(obs, float).tolist(),
+            segment=tick.segment,
+            obs=np.asarray(tick.obs, float).tolist(),
             raw_action=np.asarray(raw, float).tolist(),
             noise=np.asarray(noise, float).tolist(),
             reward=step.reward,
@@ -233,19 +183,21 @@ class ActorNode(Node):
             success=bool(step.info.get("success", False)),
             distance=float(step.info.get("distance", 0.0)),
             predicted=[] if predicted is None else np.asarray(predicted, float).tolist(),
-            end=m.enum(m.Transition, "end", end),
+            end=m.enum(m.Transition, "end", tick.end),
             policy_version=max(self.actor.version, 0),
             target_age=float(step.info.get("target_age_s", 0.0)),
         )
-        if stat is not None:
-            msg.statistic = stat
+        if tick.statistic is not None:
+            msg.statistic = tick.statistic
         self._pub_transition(msg)
 
     def _write_counts(self) -> dict[str, Any]:
         env = self.env
         out = {
             **self.counts,
-            **self.starts,
+            "segments": self.loop.segments,
+            "retreats": self.loop.ends[SegmentEnd.RETREAT],
+            **self.loop.starts,
             "policy_version": self.actor.version,
             **env.book.counts(),
             "target_waits": env.target_waits,

@@ -586,4 +586,4 @@ class ZenohReachEnv(ReachSpec):
         obs, reward, info = self._observe(state, target)
         info.update(tick=state.tick, played_chunk=state.played_chunk, mode=m.label(state, "mode"))
         truncated = self._steps >= self.settings.max_episode_steps or restarted
-        return Executed(plan_id, index, action, obs, reward, False, truncated, info)
+        return Executed(plan_id, index, action, obs, reward, False, truncated, info, state.tick)

@@ -28,13 +28,14 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from learner.acting import PolicyPlanner, SegmentLoop
 from learner.config import AdaptiveHConfig, rkhs_config
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
 from learner.parts import FIELD_BUDGET, initial_policy, kernels, retreat_threshold, segment_limit
 from learner.plan_model import plan_model
-from learner.plans import OpenSegment, Plan, PlanChannel, QueuedChannel, rollout, sample_plan
+from learner.plans import Executed, Played, QueuedChannel
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
@@ -119,25 +120,26 @@ class AdaptiveH:
         self._ep_return = 0.0
         self._ep_len = 0
         self._episode_seed = seed
-        self.channel: PlanChannel | None = None
+        # Plan execution: the segment loop on a queue in front of the env, this learner its own actor.
+        self.channel: QueuedChannel | None = None
+        self.acting: SegmentLoop | None = None
         if cfg.execution == "plan":
-            self.model, self.channel = self._plan_execution(env)
-        self.segment = OpenSegment()  # plan execution: the segment in play
-        self._next_plan_id = 0
+            self._plan_execution(env)
 
-    def _plan_execution(self, env: gym.Env):
-        """(world model, channel): the env's ``predict_next``; the env itself when it plays plans (a
-        robot over Zenoh), else a queue in front of it."""
-        base = env.unwrapped
-        model = getattr(base, "predict_next", None)
-        if model is None:
-            name = type(base).__name__
+    def _plan_execution(self, env: gym.Env) -> None:
+        """The plan model (the env's ``predict_next``), the queue the plans play on, and the loop."""
+        nominal = getattr(env.unwrapped, "predict_next", None)
+        if nominal is None:
+            name = type(env.unwrapped).__name__
             raise ValueError(f"execution: plan needs the env's world model; {name} has no predict_next")
+        cfg = self.config
         dims = (len(self.normalize.centre), len(self.policy.low))
-        model = plan_model(self.config.plan_model, model, self.normalize, dims, self.config.plan_model_memory)
-        if all(callable(getattr(base, name, None)) for name in ("send", "advance", "queued")):
-            return model, base
-        return model, QueuedChannel(env, self.config.latency_steps)
+        self.model = plan_model(cfg.plan_model, nominal, self.normalize, dims, cfg.plan_model_memory)
+        self.channel = QueuedChannel(env, cfg.latency_steps)
+        planner = PolicyPlanner(
+            self.policy, self.normalize, self.model, self.segment_limit, self.rng, cfg.latency_steps
+        )
+        self.acting = SegmentLoop(planner, self.channel, self._learn_tick, before_plan=self._schedule)
 
     # -- acting ---------------------------------------------------------------------------------
     def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
@@ -156,7 +158,7 @@ class AdaptiveH:
 
     def step_env(self) -> SegmentRecord | None:
         """One environment step; returns the segment record when this step closed a segment."""
-        if self.channel is not None:
+        if self.acting is not None:
             return self._step_plan()
         if self._obs is None:
             self._reset_episode()
@@ -169,7 +171,11 @@ class AdaptiveH:
         self._ep_return += float(reward)
         self._ep_len += 1
         episode_over = terminated or truncated
-        record = self._learn_from(s, raw, float(reward), next_obs, terminated, episode_over)
+        retreat = self._learn_sample(s, raw, float(reward), next_obs, terminated, episode_over)
+        end = self._forced_end(episode_over)
+        if retreat is not None:
+            end = segment_end(retreat, len(self.retreat.states), self.segment_limit, episode_over)
+        record = None if end == SegmentEnd.OPEN else self._close_segment(end)
         if episode_over:
             self._finish_episode(info)
         elif np.all(np.isfinite(next_obs)):
@@ -178,64 +184,46 @@ class AdaptiveH:
         return record
 
     # -- plan execution -------------------------------------------------------------------------
-    def _make_plan(self, obs: np.ndarray) -> Plan:
-        """Sample the segment's actions over model-predicted states, from where the plan will start:
-        after the actions still queued ahead of it (``latency_steps``) play out, as the model sees it."""
-        o = rollout(self.model, obs, self.channel.queued(self.config.latency_steps))
-        plan = sample_plan(
-            self._next_plan_id,
-            o,
-            self.segment_limit,
-            self.model,
-            lambda x: self.policy.sample(self.normalize(x), self.rng),
-            segment=self.log.segment_count,
-            opened_by=self.segment.opened_by,
-        )
-        self._next_plan_id += 1
-        return plan
-
     def _step_plan(self) -> SegmentRecord | None:
-        """One control step of the channel: (re)plan when no segment is open, learn from what ran."""
+        """One tick of the segment loop; this learner learns from it as it judges it."""
         if self._obs is None:
             self._reset_episode()
-        seg = self.segment
-        if seg.plan is None:
-            self._schedule()
-            seg.open(self._make_plan(self._obs))
-            self.channel.send(seg.plan)
-        s = self.normalize(self._obs)
-        step = self.channel.advance()
-        played = seg.tick(step)
+        elif self.acting.obs is None:  # resumed from a checkpoint: act on from its state
+            self.acting.begin(self._obs)
+        tick = self.acting.tick()
+        record = None if tick.end == SegmentEnd.OPEN else self._close_segment(tick.end)
+        if tick.episode_over:
+            self._finish_episode(tick.step.info)
+        else:
+            self._obs = self.acting.obs
+        return record
+
+    def _learn_tick(self, obs: np.ndarray, step: Executed, played: Played) -> tuple[float | None, bool]:
+        """The loop's judge in-process (``learner.acting.Judge``): learn from the tick, then the retreat
+        test with the field that includes it; a sample that is not finite closes the segment."""
+        s = self.normalize(obs)
         predicted = reached = None
         if played.current and np.all(np.isfinite(step.obs)):
             predicted, reached = self.normalize(played.predicted(step)), self.normalize(step.obs)
-        if step.plan_id != -1:  # an action played: what the world did with it
-            self.model.observe(self._obs, step.action, step.obs)
         self.log.global_step += 1
         self._ep_return += float(step.reward)
         self._ep_len += 1
-        episode_over = step.terminated or step.truncated
-        record = self._learn_from(
+        judged = len(self.retreat.trace)
+        retreat = self._learn_sample(
             s,
             played.raw(step),
             step.reward,
             step.obs,
             step.terminated,
-            episode_over,
+            step.terminated or step.truncated,
             predicted,
             reached,
             ahead=step.index + 1,
-            plan_gone=played.plan_gone,
         )
-        if record is not None:
-            seg.close(record.reason)  # the next step re-plans and preempts the rest
-        if episode_over:
-            self._finish_episode(step.info)
-        elif np.all(np.isfinite(step.obs)):
-            self._obs = np.asarray(step.obs, float)
-        return record
+        statistic = self.retreat.trace[-1] if len(self.retreat.trace) > judged else None
+        return statistic, True if retreat is None else retreat
 
-    def _learn_from(
+    def _learn_sample(
         self,
         s: np.ndarray,
         raw: np.ndarray,
@@ -245,21 +233,18 @@ class AdaptiveH:
         episode_over: bool,
         predicted: np.ndarray | None = None,
         reached: np.ndarray | None = None,
-        decided: str | None = None,
+        judged: bool = False,
         statistic: float | None = None,
         noise: np.ndarray | None = None,
         ahead: int = 0,
-        plan_gone: bool = False,
-    ) -> SegmentRecord | None:
-        """Learn from one executed step (``predicted``: ``ahead`` steps into its plan). The segment closes
-        by the agent's own test (``learner.segments.segment_end``; ``plan_gone``: this tick played no
-        action of the segment's plan after one did), or where ``decided`` says (an actor's
-        ``SegmentEnd``, with the ``statistic`` it saw)."""
+    ) -> bool | None:
+        """Learn from one executed step (``predicted``: ``ahead`` steps into its plan); whether the retreat
+        test failed (``judged``: an actor evaluated it, ``statistic``), or None when the sample was not
+        finite and was dropped: a NaN must never reach the dictionaries."""
         s_next = self.normalize(next_obs)
         if not (np.all(np.isfinite(s_next)) and np.isfinite(reward)):
-            # A NaN must never reach the dictionaries: drop the sample and close the segment.
             self.nonfinite_skipped += 1
-            return self._close_segment(SegmentEnd.EPISODE_END if episode_over else SegmentEnd.RETREAT)
+            return None
         if noise is None:
             log_prob, score = self.policy.log_prob_and_score(s, raw)  # under the policy that drew raw
         else:  # an actor's sample, drawn by a snapshot of this policy: scored by its own noise
@@ -267,19 +252,18 @@ class AdaptiveH:
         g, advantage = self._gradient(s, raw, score, reward, s_next, terminated)
         if not np.isfinite(float(np.linalg.norm(g))):
             self.nonfinite_skipped += 1
-            return self._close_segment(SegmentEnd.RETREAT)
+            return None
         g = self._shape(s, g)
         if self.config.advantage_lambda > 0.0:
             self._accrue(s, score, advantage, episode_over)
         if self.replay is not None:
             self.replay.push(Transition(s, np.asarray(raw, float), reward, s_next, terminated, log_prob))
-        retreat = self.retreat.push(s, g, predicted, reached, decided is not None, statistic, ahead)
-        if decided is None:
-            decided = segment_end(
-                retreat, len(self.retreat.states), self.segment_limit, episode_over, plan_gone
-            )
-        # else: an actor's plan, judged where it played (the same rules, ``deploy.actor_node``)
-        return None if decided == SegmentEnd.OPEN else self._close_segment(SegmentEnd(decided))
+        return self.retreat.push(s, g, predicted, reached, judged, statistic, ahead)
+
+    @staticmethod
+    def _forced_end(episode_over: bool) -> SegmentEnd:
+        """How a segment ends whose sample was dropped as not finite."""
+        return SegmentEnd.EPISODE_END if episode_over else SegmentEnd.RETREAT
 
     # -- learning from an actor ------------------------------------------------------------------
     def learn_transition(
@@ -309,7 +293,7 @@ class AdaptiveH:
         self._ep_return += float(reward)
         self._ep_len += 1
         episode_over = terminated or truncated
-        record = self._learn_from(
+        retreat = self._learn_sample(
             s,
             np.asarray(raw, float),
             reward,
@@ -318,10 +302,12 @@ class AdaptiveH:
             episode_over,
             predicted,
             reached,
-            end,
+            True,
             statistic,
             noise,
-        )
+        )  # the actor judged the tick where it played (the same rules, ``learner.acting``)
+        decided = self._forced_end(episode_over) if retreat is None else SegmentEnd(end)
+        record = None if decided == SegmentEnd.OPEN else self._close_segment(decided)
         if episode_over:
             self._finish_episode(info)
             self._ep_return, self._ep_len = 0.0, 0  # the actor has reset the robot
@@ -483,8 +469,10 @@ class AdaptiveH:
         return record
 
     def _reset_episode(self) -> None:
-        obs, _ = (self.channel or self.env).reset(seed=self._episode_seed)
-        self.segment.new_episode()
+        if self.acting is not None:
+            obs, _ = self.acting.reset(seed=self._episode_seed)
+        else:
+            obs, _ = self.env.reset(seed=self._episode_seed)
         self._episode_seed += 1
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0
@@ -505,7 +493,6 @@ class AdaptiveH:
             )
         )
         self._obs = None
-        self.segment.new_episode()
 
     # -- checkpoints ----------------------------------------------------------------------------
     def state_dict(self) -> dict:

@@ -58,6 +58,7 @@ class Executed:
     terminated: bool
     truncated: bool
     info: dict[str, Any] = field(default_factory=dict)
+    tick: int | None = None  # the channel's tick number (a robot's control tick), when it counts them
 
 
 @dataclass(frozen=True)
@@ -189,10 +190,12 @@ class QueuedChannel:
         self.preemptions = 0
         self._queue: deque[tuple[int, int, np.ndarray]] = deque()  # (plan_id, index, action)
         self._pending: deque[tuple[int, Plan]] = deque()  # (steps until it takes effect, plan)
+        self._tick = 0  # steps since the episode began
 
     def reset(self, seed: int | None = None) -> tuple[np.ndarray, dict]:
         self._queue.clear()
         self._pending.clear()
+        self._tick = 0
         return self.env.reset(seed=seed)
 
     def send(self, plan: Plan) -> None:
@@ -222,4 +225,6 @@ class QueuedChannel:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._pending = deque((left - 1, plan) for left, plan in self._pending)
         self._deliver()
-        return Executed(plan_id, index, np.asarray(action), obs, float(reward), terminated, truncated, info)
+        self._tick += 1
+        action = np.asarray(action)
+        return Executed(plan_id, index, action, obs, float(reward), terminated, truncated, info, self._tick)

@@ -245,8 +245,9 @@ def test_the_actor_corrects_its_plan_model_from_the_ticks_it_played(tmp_path):
         bench.wait(lambda: len(bench.transitions) > n + 60, 30, "60 more ticks")
         ticks = len(bench.transitions)
     counts = json.loads((Path(cfg["learner"]["checkpoint_dir"]) / "actor.json").read_text())
-    # Each consecutive tick that played a plan's action; not a tick across a reset or an outage.
-    assert 40 <= counts["plan_model_updates"] < counts["steps"], (counts, ticks)
+    # Each tick that played a plan's action right after the tick it acted from (an episode's first from
+    # the reset's tick); never one across a reset or an outage (learner/test_acting.py checks which).
+    assert 40 <= counts["plan_model_updates"] <= counts["steps"], (counts, ticks)
     # Every plan that played was seen to start, and how late against the tick it was planned from.
     # (a plan cut before it played, a hold under load, has no start: half is a loose floor)
     assert counts["segments"] / 2 <= counts["plan_starts"] <= counts["segments"] + 1, counts
