@@ -172,7 +172,7 @@ REACH_BASELINE_VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
 
 
 # NS Pendulum's variants (part ``pendulum_variants``), each on top of configs/pendulum.yaml as configured;
-# none beat it (README, "The learner"). A longer horizon with the step scaled by (1 - γ) so that the
+# none beat it (docs/learner_measurements.md). A longer horizon with the step scaled by (1 - γ) so that the
 # actor's α/(1-γ) stays; GAE(λ) advantages; the critic's own, narrower kernel (a value function can be
 # sharper than a policy needs to be); a longer critic memory, longer GAE traces, shorter segments and a
 # wider start of the annealed exploration.

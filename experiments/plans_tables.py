@@ -151,7 +151,7 @@ def write_plans_markdown(summary: dict[str, Any], out_dir: Path) -> Path:
             )
     lines += [
         "",
-        "## The default: one configuration for every setting (issue #33)",
+        "## The default: one configuration for every setting",
         "",
         "AdaptiveH as `AdaptiveHConfig` has it in plan mode (the plan retreat, its derived threshold, the "
         "noise-floor tolerance over 0.15 of the policy's kernel). *Paired*: each seed against its own "

@@ -1,9 +1,9 @@
 """The simulated world handed to robot_io's and vision's simulation backends, which never build it.
 
-robot_io and vision import neither ``sim`` nor PyBullet (README, "Layering"): the layer above both wires
-sim's PyBullet Panda scene (or franky-sim's scripted target) into them. ``sim`` is imported only when a
-simulated world is built, so robot-io on a real arm never loads PyBullet (and vision's replica scene
-does not load robot_io's kinematics).
+robot_io and vision import neither ``sim`` nor PyBullet (docs/departures.md, "Layering"): the layer above
+both wires sim's PyBullet Panda scene (or franky-sim's scripted target) into them. ``sim`` is imported
+only when a simulated world is built, so robot-io on a real arm never loads PyBullet (and vision's
+replica scene does not load robot_io's kinematics).
 """
 
 from __future__ import annotations

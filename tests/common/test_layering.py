@@ -1,6 +1,6 @@
-"""Imports point down (README "Layering"): each top-level folder imports only the folders below it; the
-libraries (learner, robot_io, vision) import neither ``sim`` nor ``deploy`` (their simulation backends
-are handed their world by ``tasks.sim_world``)."""
+"""Imports point down (docs/departures.md, "Layering"): each top-level folder imports only the folders
+below it; the libraries (learner, robot_io, vision) import neither ``sim`` nor ``deploy`` (their
+simulation backends are handed their world by ``tasks.sim_world``)."""
 
 from __future__ import annotations
 
