@@ -15,11 +15,14 @@ python -m pip install -q "torch==2.13.0"
 # on the SDK's software_device (pyrealsense2 loads Debian's libusb-1.0-0: scripts/test.sh installs it);
 # PyPI has pyrealsense2 wheels for x86_64 only, elsewhere that test is skipped.
 # ray: the bench's Ray executor is tested on a local 2-CPU instance (about 240 MB, 15 s to install).
-extras="dev,baselines,franky-sim,ray"
+# lerobot: adaptiveh export lerobot is tested by writing and loading a LeRobotDataset.
+extras="dev,baselines,franky-sim,ray,lerobot"
 if [ "$(uname -m)" = x86_64 ]; then
   extras="$extras,realsense"
 fi
 python -m pip install -q -e ".[$extras]"
+# LeRobot's dataset writer and reader, without its pins (pyproject.toml's lerobot extra says why).
+python -m pip install -q --no-deps "lerobot==0.4.4" "torchvision==0.28.0"
 # The sim camera renders with MuJoCo through EGL on Mesa's software rasteriser (llvmpipe): Debian's
 # libegl1, libegl-mesa0 and libgl1-mesa-dri. Without them it falls back to PyBullet's TinyRenderer,
 # with a warning, at a fraction of the rate.
