@@ -1,8 +1,11 @@
-"""The headline tables of README.md and docs/ rendered from results/*.json, so no number is typed by hand.
+"""The tables of README.md and docs/, and the results pages, rendered from results/*.json, so no number is
+typed by hand.
 
-A table sits between ``<!-- table: NAME -->`` and ``<!-- end table -->``; ``python
-scripts/results_tables.py`` rewrites every such block from its results file, ``--check`` exits 1 naming
-the blocks that differ (``tests/scripts/test_results_tables.py`` runs the check).
+A table sits between ``<!-- table: NAME -->`` and ``<!-- end table -->``; the results pages
+(``results/*.md``, the docs site's ``results/``: one per bench, and an index of every results file) are
+written whole from ``PAGES``. ``python scripts/results_tables.py`` rewrites every block and page from
+its results files, ``--check`` exits 1 naming those that differ (``tests/scripts/test_results_tables.py``
+runs the check).
 """
 
 from __future__ import annotations
@@ -15,14 +18,14 @@ import sys
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from experiments.plans_tables import default_table
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(<!-- table: (?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- end table -->)", re.S)
-GOAL = 0.70  # issue #32: last-quarter success in every run
+GOAL = 0.70  # the bar: last-quarter success in every run
 
 
 def _pct(x: float | None) -> str:
@@ -164,7 +167,8 @@ def handoff(data: dict[str, Any]) -> str:
 
 def plans_point(data: dict[str, Any], method: str) -> str:
     """A plans-bench summary (``results/plans``, or ``results/plans_s10``: the front, the default and the
-    corrected option on 10 seeds): one plan-retreat point per setting against issue #33's goals."""
+    corrected option on 10 seeds): one plan-retreat point per setting against the bar (above the
+    fixed-H front on 4 of 5 settings, below on none)."""
     return "\n".join(default_table(data, method)) + "\n"
 
 
@@ -196,6 +200,170 @@ def refreshed(text: str) -> str:
     return BLOCK.sub(lambda mt: mt.group(1) + render(mt.group("name")) + mt.group(4), text)
 
 
+# -- the results pages ---------------------------------------------------------------------------------
+
+RESULTS = ROOT / "results"
+PAGE_HEADER = (
+    "*Generated from `{sources}` by `python scripts/results_tables.py`;"
+    " tests/scripts/test_results_tables.py fails while this page is stale.*"
+)
+
+
+class Page(NamedTuple):
+    """One results page: its title, what it answers, the command that made its results, and its parts:
+    ``("## heading", TABLE name)``, ``("## heading", "figure.png")`` or ``("## heading", "text")``."""
+
+    title: str
+    intro: str
+    made_by: str
+    parts: tuple[tuple[str, str], ...]
+    explained: str  # the docs page that reads these numbers
+
+
+PAGES: dict[str, Page] = {
+    "stack_robustness.md": Page(
+        "The main job under timing conditions",
+        "What the main job (`bash scripts/run.sh`: 6000 steps, the actor beside the arm) achieves under"
+        " each timing condition, per seed, with the in-process learner on the same seeds as the reference:"
+        " medians over seeds, the range in brackets.",
+        "python bench/stack_robustness.py",
+        (
+            ("## The shipped stack", "stack_robustness_shipped"),
+            ("## Every condition and agent variant", "stack_robustness"),
+            ("## Figure", "stack_robustness.png"),
+            ("## Earlier agents and cameras", "stack_robustness_history.png"),
+        ),
+        "../stack_timing.md#timing-measured",
+    ),
+    "handoff.md": Page(
+        "From the simulator to the arm: handoffs",
+        "What a policy trained in simulation brings to franky-sim and to four reality-gap overlays of the"
+        " mock, against learning from scratch and a frozen policy: medians over the seeds run.",
+        "python bench/handoff.py",
+        (("## By setting and start", "handoff"), ("## Figure", "handoff.png")),
+        "../handoff.md#results",
+    ),
+    "plans.md": Page(
+        "Plans: the plan retreat against fixed horizons",
+        "The default plan retreat, one configuration for every setting, against the fixed-H front (unpaired,"
+        " and paired per seed), on five seeds and on ten; every number of each bench is in its own"
+        " report ([five seeds](plans/summary.md), [ten seeds](plans_s10/summary.md)).",
+        "adaptiveh bench plans",
+        (
+            ("## The default, five seeds", "plans_default"),
+            ("## The plan model corrected online, five seeds", "plans_corrected"),
+            ("## The default, ten seeds", "plans_s10_default"),
+            ("## The plan model corrected online, ten seeds", "plans_s10_corrected"),
+            ("## Return against re-plans", "plans/front.png"),
+            ("## Return against latency", "plans/latency.png"),
+        ),
+        "../paper_plans.md",
+    ),
+    "robot_io.md": Page(
+        "robot-io's control tick",
+        "The control tick's parts in one process (PyBullet mock, 20 Hz, random steps up to the action"
+        " bound), then robot-io as its own process driven over loopback Zenoh.",
+        "python bench/robot_io_bench.py",
+        (("## The tick and its latencies", "robot_io_tick"),),
+        "../robot_interface.md",
+    ),
+    "vision.md": Page(
+        "The sim camera and vision",
+        "Each renderer of the sim camera side by side on one core, and a frame's path from capture to the"
+        " target received in another process.",
+        "python bench/vision_bench.py",
+        (("## Renderers and latency", "sim_camera"),),
+        "../vision.md",
+    ),
+}
+INDEX = "index.md"
+
+
+def _sources(page: Page) -> list[str]:
+    return sorted({TABLES[name][0] for _, name in page.parts if name in TABLES})
+
+
+def render_page(page: Page) -> str:
+    """``page`` as markdown: its tables rendered from their results files, its figures linked."""
+    sources = _sources(page)
+    lines = [
+        f"# {page.title}",
+        "",
+        PAGE_HEADER.format(sources="`, `".join(sources)),
+        "",
+        f"{page.intro} Made by `{page.made_by}`; read in [the docs]({page.explained}).",
+        "",
+    ]
+    for heading, part in page.parts:
+        lines += [heading, ""]
+        if part in TABLES:
+            lines += [render(part).rstrip("\n"), ""]
+        elif part.endswith(".png"):
+            lines += [f"![{heading.lstrip('# ')}]({part})", ""]
+        else:
+            lines += [part, ""]
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def render_index(pages: dict[str, Page] = PAGES, results: Path = RESULTS) -> str:
+    """The results index: each page, then every results file (JSON, figure, report) and the page that
+    shows it (else the docs pages that name it), so a results file nothing shows is listed as such."""
+    docs = sorted((ROOT / "docs").glob("*.md"))
+    shown: dict[str, str] = {}
+    for name, page in pages.items():
+        for source in _sources(page):
+            shown.setdefault(source.removeprefix("results/"), name)
+        for _, part in page.parts:
+            if part.endswith(".png"):
+                shown.setdefault(part, name)
+    files = sorted(
+        p.relative_to(results).as_posix()
+        for pattern in ("*.json", "*.png", "*/summary.md", "*/summary.json", "*/*.png")
+        for p in results.glob(pattern)
+    )
+    lines = [
+        "# Results",
+        "",
+        PAGE_HEADER.format(sources="results/"),
+        "",
+        "What the benches measured, one page per bench; each table is rendered from the results file"
+        " the bench wrote, so no number on these pages is typed by hand.",
+        "",
+        *(f"- [{page.title}]({name}): `{page.made_by}`" for name, page in pages.items()),
+        "- [The paper bench](paper/summary.md): `adaptiveh bench paper`, its report",
+        "",
+        "## Every results file",
+        "",
+        "| file | shown on |",
+        "|---|---|",
+    ]
+    for f in files:
+        report = f"{f.split('/')[0]}/summary.md"
+        if f in shown:
+            where = f"[{pages[shown[f]].title}]({shown[f]})"
+        elif f == report:
+            where = f"[the report itself]({report})"
+        elif "/" in f and (results / report).is_file():
+            where = f"[its report]({report})"
+        else:
+            read = [d for d in docs if f"results/{f}" in d.read_text()]
+            where = ", ".join(f"read in [{d.stem}](../{d.name})" for d in read[:2]) or "-"
+        lines.append(f"| `{f}` | {where} |")
+    return "\n".join(lines) + "\n"
+
+
+def rendered_pages() -> dict[str, str]:
+    """Every results page, file name under results/ -> markdown."""
+    return {**{name: render_page(page) for name, page in PAGES.items()}, INDEX: render_index()}
+
+
+def stale_pages(pages: dict[str, str], results: Path = RESULTS) -> list[str]:
+    """The pages whose file under ``results`` is missing or differs."""
+    return [
+        n for n, text in pages.items() if not (results / n).is_file() or (results / n).read_text() != text
+    ]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="change nothing; exit 1 if a table is stale")
@@ -208,6 +376,11 @@ def main() -> int:
             stale.append(str(doc.relative_to(ROOT)))
             if not args.check:
                 doc.write_text(new)
+    pages = rendered_pages()
+    for name in stale_pages(pages):
+        stale.append(f"results/{name}")
+        if not args.check:
+            (RESULTS / name).write_text(pages[name])
     if stale:
         print(("stale tables in: " if args.check else "rewrote: ") + ", ".join(stale))
     return 1 if stale and args.check else 0
