@@ -6,8 +6,9 @@
    operator's annotated camera image at the control rate (``vision.annotated.rate_hz`` = 20; the shipped
    2 Hz would give a video of mostly repeated images), so the video has a new image at about every
    tick. Making it takes the run's real time (6000 steps at 20 Hz: 5 minutes and more).
-2. The export, timed: wall-clock seconds of ``monitor.lerobot_export.export`` (reading, decoding and
-   aligning the recording, LeRobot's writer with its mp4 encoding), into a fresh folder.
+2. The export, timed: wall-clock seconds of ``monitor.lerobot_export.export`` (importing LeRobot and
+   torch, reading, decoding and aligning the recording, LeRobot's writer with its mp4 encoding), into a
+   fresh folder.
 
 Writes ``results/lerobot_export.json``. Run: ``python bench/lerobot_export.py [--recording FILE]``.
 """
@@ -91,6 +92,7 @@ def main() -> None:
     parser.add_argument("--vcodec", default="libsvtav1", help="LeRobot's video codec (libsvtav1, h264)")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "lerobot_export.json")
     args = parser.parse_args()
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration at every episode
     recording = args.recording or existing_recording() or make_recording(args.steps)
     result = {
         "recording": str(recording.relative_to(ROOT) if recording.is_relative_to(ROOT) else recording),
