@@ -70,11 +70,12 @@ def existing_recording(home: Path = HOME) -> Path | None:
 def measure(recording: Path, vcodec: str) -> dict[str, Any]:
     """Export ``recording`` into a fresh folder; wall-clock seconds and what was written."""
     from monitor.lerobot_export import export
+    from tasks.reach import OBSERVATION_NAMES
 
     out = Path(tempfile.mkdtemp(prefix="lerobot_bench_")) / "dataset"
     try:
         t0 = time.perf_counter()
-        report = export([recording], out, vcodec=vcodec)
+        report = export([recording], out, vcodec=vcodec, learner_names=OBSERVATION_NAMES)
         seconds = time.perf_counter() - t0
         size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     finally:

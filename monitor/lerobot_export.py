@@ -15,16 +15,16 @@ The action is the step the next tick played (its state's ``played_chunk``/``play
 the recorded ``cmd/chunk``); reward, done, success, segment and the retreat statistic are the
 Transition's own.
 
-Columns (LeRobot's names first, then ours; ``docs/recording.md`` explains them):
+Columns (LeRobot's names first, then ours; ``docs/stack_operator.md`` explains them):
 ``observation.state`` (joints, measured end effector, the target position and velocity as the learner saw
 it, the fix's age), ``observation.learner`` (the learner's 15 values, exactly), ``action`` (the Cartesian
 step played, m per period; zeros on a hold), ``observation.images.camera`` (raw ``camera/frame`` when
 recorded, else the operator's annotated JPEG), ``next.reward``, ``next.done``, ``next.success``, the task
-text; ``segment.index``, ``segment.end`` (``learner.segments.SegmentEnd``: open, retreat, h_max,
-episode_end), ``retreat.statistic`` with ``retreat.evaluated``, ``plan.dropped`` (planned actions a newer
-chunk preempted, reported in ``cmd/status`` since the previous frame), ``observation.camera_age``, and
-``robot.tick``/``robot.stamp_ns`` (the tick's state: its number and MCAP publish time) to find the frame
-in the MCAP.
+text; ``segment.index``, ``segment.end`` (open, retreat, h_max, episode_end: the schema's
+``Transition.SegmentEnd``, which spells ``learner.segments.SegmentEnd``), ``retreat.statistic`` with
+``retreat.evaluated``, ``plan.dropped`` (planned actions a newer chunk preempted, reported in
+``cmd/status`` since the previous frame), ``observation.camera_age``, and ``robot.tick``,
+``robot.stamp_ns`` (the frame's state in the MCAP: tick, publish time) and ``robot.published``.
 
 Not recorded, so not exported: the joint torques, the depth image unless ``camera/frame`` was recorded
 (it is not exported either way), the config (the fps comes from the ticks, the task text is fixed).
@@ -33,7 +33,7 @@ Not recorded, so not exported: the joint torques, the depth image unless ``camer
 from __future__ import annotations
 
 import importlib
-import logging
+import shutil
 import sys
 from bisect import bisect_right
 from collections.abc import Iterator, Sequence
@@ -46,15 +46,11 @@ import numpy as np
 
 from bus import messages as m
 from common.errors import AdaptiveHError
-from learner.segments import SegmentEnd
 from monitor.recording import read
-from tasks.reach import OBSERVATION_NAMES
 
-log = logging.getLogger(__name__)
 TASK_TEXT = "reach the moving target with the end effector"
 CAMERA_KEY = "observation.images.camera"
 TOPICS = (m.STATE, m.TRANSITIONS, m.CMD_CHUNK, m.CHUNK_STATUS, m.TARGET, m.CAMERA, m.CAMERA_ANNOTATED)
-SEGMENT_ENDS = {m.enum(m.Transition, "end", e.value): e.value for e in SegmentEnd}  # proto number -> name
 FPS_TOLERANCE = 0.1  # the measured rate is within 10 % of a whole number of ticks per second
 
 
@@ -97,13 +93,15 @@ def load(path: str | Path) -> Recording:
 
     Rejected bytes (``_rejected/...``) and the derived Foxglove channels are not the robot's messages and
     are not read; every other message of a used channel must decode as its type (a recording written by
-    this stack always does: the recorder keeps bad bytes apart)."""
+    this stack always does: the recorder keeps bad bytes apart). A message recorded twice, byte for byte,
+    is read once."""
     path = Path(path)
     if not path.exists():
         raise ExportError(f"{path}: no such recording")
     wanted = {t.name: t for t in TOPICS}
     robots: set[str] = set()
     streams: dict[str, Stream] = {}
+    seen: dict[tuple[str, int, float], bytes] = {}
     for key, _, log_time, data in read(path):
         topic = m.topic_of_key(key)
         if topic is None:  # rejected bytes, derived Foxglove channels
@@ -115,6 +113,9 @@ def load(path: str | Path) -> Recording:
             msg = topic.decode(data)
         except m.MessageError as exc:
             raise ExportError(f"{path}: channel {key}: message logged at {log_time} ns: {exc}") from None
+        if seen.get((key, msg.seq, msg.stamp)) == data:
+            continue  # the same message recorded twice (a copy recovered from the publisher's cache)
+        seen[(key, msg.seq, msg.stamp)] = data
         streams.setdefault(topic.name, Stream(key)).msgs.append(msg)
     if len(robots) != 1:
         raise ExportError(f"{path}: expected the channels of one robot, found {sorted(robots) or 'none'}")
@@ -209,15 +210,30 @@ def target_age(rec: Recording, t: float) -> float:
 
 
 def _episodes_of(transitions: list[m.Transition]) -> Iterator[list[m.Transition]]:
-    """Runs of consecutive Transitions of one episode number."""
+    """Runs of consecutive Transitions of one episode number (a restarted actor, counting its steps from
+    0 again, begins a new one too)."""
     run: list[m.Transition] = []
     for tr in transitions:
-        if run and tr.episode != run[-1].episode:
+        if run and (tr.episode != run[-1].episode or tr.step == 0):
             yield run
             run = []
         run.append(tr)
     if run:
         yield run
+
+
+def _once(transitions: list[m.Transition]) -> list[m.Transition]:
+    """Each executed tick once. An actor may publish a Transition again (a resend to a learner that lacks
+    it), with a new ``seq`` and stamp but the same step and values: the first copy, in stamp order,
+    stands for the tick."""
+    seen: set[tuple] = set()
+    out = []
+    for tr in transitions:
+        ident = (tr.episode, tr.step, tuple(tr.obs), tuple(tr.next_obs), tr.reward)
+        if ident not in seen:
+            seen.add(ident)
+            out.append(tr)
+    return out
 
 
 def _check_steps(rec: Recording, transitions: list[m.Transition]) -> None:
@@ -293,7 +309,7 @@ def episodes(rec: Recording, camera: str = "auto") -> list[Episode]:
             f"{rec.path}: channel {rec.stream(m.TRANSITIONS).key}: no transitions recorded (the export "
             "reads the actor's: learner.execution actor)"
         )
-    transitions = sorted(transitions, key=lambda tr: tr.stamp)
+    transitions = _once(sorted(transitions, key=lambda tr: tr.stamp))
     _check_steps(rec, transitions)
     finder, chunks, images = TickFinder(rec), _chunks(rec), Images(rec, camera)
     states, statuses = rec.stream(m.STATE), rec.stream(m.CHUNK_STATUS)
@@ -319,7 +335,7 @@ def episodes(rec: Recording, camera: str = "auto") -> list[Episode]:
                     "next.done": [tr.terminated or tr.truncated],
                     "next.success": [tr.success],
                     "segment.index": [tr.segment],
-                    "segment.end": SEGMENT_ENDS[tr.end],
+                    "segment.end": m.label(tr, "end"),  # learner.segments.SegmentEnd's names
                     "retreat.statistic": [tr.statistic if tr.HasField("statistic") else 0.0],
                     "retreat.evaluated": [tr.HasField("statistic")],
                     "plan.dropped": [sum(s.dropped for s in statuses.msgs[lo + 1 : hi + 1])],
@@ -357,7 +373,9 @@ def _stack(rows: list[dict[str, Any]]) -> dict[str, np.ndarray]:
 
 
 # -- the dataset --------------------------------------------------------------------------------------------
-def features(n_joints: int, image_shape: tuple[int, int, int] | None) -> dict[str, dict]:
+def features(
+    n_joints: int, image_shape: tuple[int, int, int] | None, learner_names: Sequence[str]
+) -> dict[str, dict]:
     """LeRobot's feature spec of the columns ``episodes`` makes."""
 
     def vector(names: Sequence[str], dtype: str = "float32") -> dict:
@@ -368,7 +386,7 @@ def features(n_joints: int, image_shape: tuple[int, int, int] | None) -> dict[st
     state_names += [f"target_v{a}" for a in "xyz"] + ["target_age_s"]
     spec = {
         "observation.state": vector(state_names),
-        "observation.learner": vector(OBSERVATION_NAMES),
+        "observation.learner": vector(learner_names),
         "action": vector([f"d{a}" for a in "xyz"]),
         "next.reward": vector(["reward"]),
         "next.done": vector(["done"], "bool"),
@@ -478,7 +496,13 @@ def _scalar_columns(buffer: dict[str, Any], spec: dict[str, dict]) -> None:
 
 
 def write(
-    eps: list[Episode], out: Path, fps: int, robot: str, repo_id: str, vcodec: str = "libsvtav1"
+    eps: list[Episode],
+    out: Path,
+    fps: int,
+    robot: str,
+    repo_id: str,
+    vcodec: str = "libsvtav1",
+    learner_names: Sequence[str] | None = None,
 ) -> None:
     """Write ``eps`` with LeRobot's writer, the video encoded while the frames go in (its streaming
     encoder, with room for a whole episode so it never drops a frame)."""
@@ -489,7 +513,7 @@ def write(
     dataset = dataset_class.create(
         repo_id,
         fps,
-        features(n_joints, shape),
+        features(n_joints, shape, learner_names or _numbered(eps[0].columns["observation.learner"])),
         root=out,
         robot_type=robot,
         use_videos=True,
@@ -512,6 +536,10 @@ def write(
         dataset.finalize()
 
 
+def _numbered(column: np.ndarray) -> list[str]:
+    return [f"obs_{i}" for i in range(column.shape[1])]
+
+
 def export(
     recordings: Sequence[str | Path],
     out: str | Path,
@@ -519,8 +547,12 @@ def export(
     camera: str = "auto",
     vcodec: str = "libsvtav1",
     fps: int | None = None,
+    learner_names: Sequence[str] | None = None,
 ) -> dict[str, Any]:
-    """Export ``recordings`` (in order) into a new LeRobotDataset at ``out``; what was written."""
+    """Export ``recordings`` (in order) into a new LeRobotDataset at ``out``; what was written.
+
+    ``learner_names``: the names of the learner's observation values (the task's, ``tasks.reach``
+    ``OBSERVATION_NAMES``, which the caller knows: monitor/ sits below the tasks); default obs_0, ..."""
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ExportError(f"{out}: exists and is not empty; give a new folder")
@@ -536,7 +568,11 @@ def export(
     if len(rates) != 1:
         raise ExportError(f"the recordings' control rates differ ({sorted(rates)} Hz): one dataset, one fps")
     rate, robot = rates.pop(), sorted(robots)[0]
-    write(eps, out, rate, robot, repo_id or f"adaptiveh/{robot}", vcodec)
+    try:
+        write(eps, out, rate, robot, repo_id or f"adaptiveh/{robot}", vcodec, learner_names)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)  # the folder is ours (new or empty): no half dataset
+        raise
     return {
         "episodes": len(eps),
         "frames": sum(len(ep) for ep in eps),

@@ -47,11 +47,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from monitor.lerobot_export import ExportError, export
+    from tasks.reach import OBSERVATION_NAMES
 
     setup_logging(args.log_level)
     os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration at every episode
     try:
-        report = export(args.recordings, args.out, args.repo_id, args.camera, args.vcodec, args.fps)
+        report = export(
+            args.recordings, args.out, args.repo_id, args.camera, args.vcodec, args.fps, OBSERVATION_NAMES
+        )
     except ExportError as exc:
         logging.error("%s", exc)
         return 2

@@ -28,6 +28,7 @@ from bus import messages as m
 from bus.transport import ZenohConfig, open_session
 from monitor.lerobot_export import CAMERA_KEY, ExportError, export, lerobot_dataset_class
 from monitor.recording import Recorder
+from tasks.reach import OBSERVATION_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -46,13 +47,16 @@ def load(dataset_class: type, out: Path) -> Any:
 
 
 def mcap_messages(path: Path) -> dict[str, list]:
-    """The recording's typed messages by topic, in log order, decoded with the schema's classes."""
+    """The recording's typed messages by topic, in log order, decoded with the schema's classes; the
+    transitions once each (an actor resends those its learner lacks: the same step, a later copy)."""
     out: dict[str, list] = defaultdict(list)
     with open(path, "rb") as fh:
         for _, channel, message in make_reader(fh).iter_messages(log_time_order=True):
             topic = m.topic_of_key(channel.topic)
             if topic is not None:
                 out[topic.name].append(topic.type.FromString(message.data))
+    once = {(tr.episode, tr.step): tr for tr in reversed(out["stream/transition"])}
+    out["stream/transition"] = sorted(once.values(), key=lambda tr: (tr.episode, tr.step))
     return out
 
 
@@ -67,7 +71,7 @@ def stack_export(lerobot: type, tmp_path_factory: pytest.TempPathFactory) -> tup
     path.write_text(yaml.safe_dump(cfg))
     recording = Path(run_up(path, "--log-level", "WARNING", timeout=240)["recording"])
     out = tmp / "dataset"
-    export([recording], out)
+    export([recording], out, learner_names=OBSERVATION_NAMES)
     return cfg, recording, out
 
 
@@ -101,6 +105,7 @@ def test_lerobot_loads_the_export_of_a_stack_run(lerobot: type, stack_export: tu
     }
     assert set(ds.features) == ours | {"timestamp", "frame_index", "episode_index", "index", "task_index"}
     assert ds.features["observation.state"]["shape"] == (7 + 10,)
+    assert ds.features["observation.learner"]["names"] == list(OBSERVATION_NAMES)
     height = round(cfg["vision"]["annotated"]["width"] * 480 / 640)
     assert ds.features[CAMERA_KEY]["shape"] == (height, cfg["vision"]["annotated"]["width"], 3)
     assert ds.meta.video_keys == [CAMERA_KEY] and ds.meta.stats["action"]["mean"].shape == (3,)
@@ -220,8 +225,8 @@ def record(path: Path, endpoint: str, puts: list[tuple[str, bytes]]) -> None:
 def later_values_first(path: Path, endpoint: str) -> None:
     """Ticks 0..5 and four transitions observing ticks 1..4; image A (red) stamped at tick 1, image B
     (blue) 1 ms after tick 2, a target fix 1 ms after tick 1, and a chunk's 5 dropped actions 1 ms after
-    tick 2, each of the late ones put on the bus before the tick it follows; garbage on the transition
-    key (recorded apart, on ``_rejected/...``)."""
+    tick 2, each of the late ones put on the bus before the tick it follows; one transition again (a
+    resend) and garbage on the transition key (recorded apart, on ``_rejected/...``)."""
     t = [T0 + PERIOD * k for k in range(6)]
     late_image = m.AnnotatedImage(seq=2, stamp=t[2] + 0.001, jpeg=jpeg((0, 0, 255)), detected=True)
     fix = {"position": [0.5, 0.1, 0.3], "velocity": [0.0] * 3, "covariance": [0.0] * 9, "valid": True}
@@ -248,6 +253,9 @@ def later_values_first(path: Path, endpoint: str) -> None:
     puts += [("cmd/status", dropped), ("state", state(2, 1))]
     puts += [("state", state(k, k - 1)) for k in (3, 4, 5)]
     puts += [("stream/transition", transition(step, step + 1)) for step in range(4)]
+    resent = transition(1, 2)  # an actor's resend to its learner: the same tick, a new seq and stamp
+    resent.seq, resent.stamp = 99, t[5] + 0.5
+    puts.append(("stream/transition", resent))
     encoded = [(topic, msg.SerializeToString()) for topic, msg in puts]
     record(path, endpoint, [*encoded, ("stream/transition", b"\xff\x00not a transition")])
 
