@@ -41,6 +41,7 @@ from bus.schema.adaptiveh_pb2 import (
     SafetyEvent,
     Target,
     Transition,
+    TransitionAck,
 )
 from common.errors import AdaptiveHError
 
@@ -120,6 +121,8 @@ TARGET_TRUTH = Topic("sim/target_truth", Target, kept=KEPT)
 # tick the other. Snapshots are rare and must not be lost; the stream is kept so a stalled reader catches up.
 POLICY = Topic("policy/snapshot", PolicySnapshot, never_drop=True, kept=8)
 TRANSITIONS = Topic("stream/transition", Transition, kept=KEPT)
+# The learner's account of each actor's stream: what it learned and checkpointed (deploy.transition_stream).
+TRANSITION_ACKS = Topic("stream/ack", TransitionAck)
 RESET = Service("reset", ResetRequest, ResetReply)
 
 TOPICS: dict[str, Topic[Any]] = {t.name: t for t in list(globals().values()) if isinstance(t, Topic)}

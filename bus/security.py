@@ -54,7 +54,13 @@ PART_IDENTITY: dict[str, Identity] = {
 _ALIVE = m.LIVELINESS
 ROLES: dict[Identity, dict[str, tuple[str, ...]]] = {
     "learner": {
-        "put": ("cmd/**", m.EVENTS_RETREAT.name, m.TELEMETRY_LEARNER.name, m.POLICY.name),
+        "put": (
+            "cmd/**",
+            m.EVENTS_RETREAT.name,
+            m.TELEMETRY_LEARNER.name,
+            m.POLICY.name,
+            m.TRANSITION_ACKS.name,
+        ),
         "query": (m.RESET.name,),
         "liveliness_token": (f"{_ALIVE}/learner/**",),
     },

@@ -27,6 +27,7 @@ from bus.node import Node
 from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
 from deploy.policy_wire import snapshot_from_message
+from deploy.transition_stream import Outbox
 from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
 from learner.acting import SegmentLoop, Tick
 from learner.actor import Actor
@@ -65,7 +66,9 @@ class ActorNode(Node):
         )
         self.counts = {"steps": 0, "episodes": 0, "snapshots": 0, "refused": 0}
         self._refusals = Throttle("refused snapshots", EVENT_EVERY_S)
-        self._pub_transition = self.bus.publisher(m.TRANSITIONS)
+        self.outbox = Outbox(self.bus.publisher(m.TRANSITIONS), lc.unsaved_limit)
+        self._losses = Throttle("transitions dropped before the learner saved them", EVENT_EVERY_S)
+        self.bus.subscribe(m.TRANSITION_ACKS, self.outbox.on_ack)
         self._pub_safety = self.bus.publisher(m.EVENTS_SAFETY)
         self.bus.subscribe(m.POLICY, self._on_snapshot, on_bad=self._on_bad_snapshot)
         self.declare_alive()
@@ -97,9 +100,11 @@ class ActorNode(Node):
         self._report_refusal(self._refusals.report(detail))
 
     def _report_held_back(self) -> None:
-        """Snapshots the throttle held back, once their window ends (a burst with nothing after)."""
+        """Reports the throttles held back, once their window ends (a burst with nothing after)."""
         for detail in self._refusals.overdue():
             self._report_refusal(detail)
+        for detail in self._losses.overdue():
+            log.warning("%s", detail)
 
     def _report_refusal(self, detail: str | None) -> None:
         if detail is not None:
@@ -158,6 +163,7 @@ class ActorNode(Node):
         while not self.stopping:
             tick = self.loop.tick()
             self._publish(episode, tick)
+            self.outbox.resend()
             self._report_held_back()
             self.counts["steps"] += 1
             if tick.episode_over:
@@ -170,7 +176,6 @@ class ActorNode(Node):
         noise = source.noise[step.index] if source is not None else np.zeros_like(raw)  # a hold: no draw
         predicted = played.predicted(step)
         msg = m.Transition(
-            step=self.counts["steps"],
             episode=episode,
             segment=tick.segment,
             obs=np.asarray(tick.obs, float).tolist(),
@@ -189,7 +194,11 @@ class ActorNode(Node):
         )
         if tick.statistic is not None:
             msg.statistic = tick.statistic
-        self._pub_transition(msg)
+        if self.outbox.send(msg):
+            why = f"the learner has not saved the last {self.outbox.limit} transitions: the oldest is lost"
+            detail = self._losses.report(f"{why} ({self.outbox.lost} so far)")
+            if detail is not None:
+                log.warning("%s", detail)
 
     def _write_counts(self) -> dict[str, Any]:
         env = self.env
@@ -205,6 +214,10 @@ class ActorNode(Node):
             "suspended_ticks": env.suspended_ticks,
             "robot_restarts": env.robot_restarts,
             "plan_model_updates": self.actor.model.updates,  # ticks the plan model learned from
+            "stream": self.outbox.stream,
+            "transitions_unsaved": self.outbox.unsaved(),  # kept: the learner has not checkpointed them
+            "transitions_resent": self.outbox.resent,
+            "transitions_lost": self.outbox.lost,
             "error": self.error,
         }
         self.out.parent.mkdir(parents=True, exist_ok=True)

@@ -94,6 +94,13 @@ class LearnerConfig(Section):
     checkpoint_every: int = Field(
         500, ge=1, description="save a checkpoint every this many environment steps (and at the end)"
     )
+    unsaved_limit: int = Field(
+        20_000,
+        ge=100,
+        description="execution actor: the transitions an actor keeps until the learner has checkpointed"
+        " them (sent again to a learner that lacks them); beyond it the oldest are dropped, counted and"
+        " reported as lost (20,000: over 16 minutes at 20 Hz)",
+    )
     # A handoff: start from the policy (critic, gradient field, plan tolerance) of another run's
     # checkpoint, a file or its run folder (``adaptiveh train`` or another stack's checkpoint_dir), then
     # keep learning. Checked against this task when the stack starts (learner.provenance); a run that

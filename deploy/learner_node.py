@@ -1,6 +1,7 @@
 """The learner process: any registry agent (AdaptiveH, RKHS, TD3, DDPG) on the Zenoh reach env, or, with
 ``learner.execution: actor``, an RKHS learner that learns from the actor's stream of executed ticks
-(``TransitionFeed``) and publishes a policy snapshot at each segment end (``deploy.actor_node``).
+(``deploy.transition_stream.Inbox``: in order, and nothing lost while the learner restarts) and
+publishes a policy snapshot at each segment end (``deploy.actor_node``).
 
 Publishes ``events/retreat`` for every closed segment (RKHS learners) and ``telemetry/learner`` for every
 finished episode; obeys ``control`` pause/resume (with the operator token when one is set); declares
@@ -19,7 +20,6 @@ import json
 import logging
 import threading
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +28,12 @@ import numpy as np
 from bus import messages as m
 from bus.node import Node
 from bus.signing import ForgedMessage, Fresh, authentic
-from bus.transport import Bus
 from common.heap import release_free_heap
 from deploy.config import StackConfig
 from deploy.plan_channel import DelayedSender
 from deploy.policy_wire import snapshot_message
 from deploy.run_report import started_from
+from deploy.transition_stream import Inbox
 from deploy.zenoh_env import EnvStopped, ReachSpec, TakenOver, ZenohReachEnv, env_settings
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
@@ -45,34 +45,6 @@ TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides
 
 
 REPUBLISH_S = 1.0  # how often the held policy is published again while no tick comes
-
-
-class TransitionFeed:
-    """The actor's executed ticks, in arrival order, for the learner's thread (bounded: a learner paused
-    for longer than ``keep`` ticks loses the oldest, counted in ``lost``)."""
-
-    def __init__(self, bus: Bus, keep: int = 20_000) -> None:
-        self._cond = threading.Condition()
-        self._items: deque[m.Transition] = deque()
-        self.keep = keep
-        self.lost = 0
-        self.received = 0
-        bus.subscribe(m.TRANSITIONS, self._on_transition)
-
-    def _on_transition(self, msg: m.Transition) -> None:
-        with self._cond:
-            self.received += 1
-            if len(self._items) >= self.keep:
-                self._items.popleft()
-                self.lost += 1
-            self._items.append(msg)
-            self._cond.notify()
-
-    def get(self, timeout: float) -> m.Transition | None:
-        with self._cond:
-            if not self._cond.wait_for(lambda: bool(self._items), timeout):
-                return None
-            return self._items.popleft()
 
 
 def learn_transition(agent: Agent, t: m.Transition) -> Any:
@@ -132,7 +104,7 @@ class LearnerNode(Node):
         self._segments_seen = self.agent.log.segment_count
         self.archive = RunArchive(self.ckpt.parent, self.agent.log)
         if self.stream:
-            self.feed = TransitionFeed(self.bus)
+            self.feed = Inbox(self.bus, getattr(self.agent, "stream_marks", {}))
             self._pub_policy = self.bus.publisher(m.POLICY)
             delay = self.cfg.latency_ms / 1000.0
             self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
@@ -212,6 +184,7 @@ class LearnerNode(Node):
         every second: a subscriber has no history, so an actor that joins later would never get it."""
         quiet_since = time.monotonic()
         while self.agent.log.global_step < self.cfg.steps and self._gate():
+            self.feed.ack()
             t = self.feed.get(timeout=0.25)
             if t is None:
                 if self._holds_policy() and time.monotonic() - quiet_since >= REPUBLISH_S:
@@ -219,7 +192,9 @@ class LearnerNode(Node):
                     quiet_since = time.monotonic()
                 continue
             quiet_since = time.monotonic()
-            if learn_transition(self.agent, t) is not None:
+            closed = learn_transition(self.agent, t)
+            self.feed.learned_one(t)
+            if closed is not None:
                 self.save()
                 self._publish_snapshot()
             self._after_step()
@@ -245,8 +220,13 @@ class LearnerNode(Node):
 
     # -- run -----------------------------------------------------------------------------------------
     def save(self) -> None:
-        """Checkpoint, then hand the writer's freed buffers back to the OS (``common.heap``)."""
+        """Checkpoint (with how far each actor's stream is learned: the actors may then forget it), then
+        hand the writer's freed buffers back to the OS (``common.heap``)."""
+        if self.stream:
+            self.agent.stream_marks = dict(self.feed.learned)
         self.agent.save(self.ckpt)
+        if self.stream:
+            self.feed.checkpointed(self.agent.stream_marks)
         release_free_heap()
 
     def run(self, progress: Any = None) -> dict[str, Any]:
@@ -317,7 +297,14 @@ class LearnerNode(Node):
 
     def _stream_counts(self) -> dict[str, Any]:
         """The stream as this learner saw it; the actor's own counts (plans, drops) are in its actor.json."""
-        return {"transitions_received": self.feed.received, "transitions_lost": self.feed.lost}
+        feed = self.feed
+        return {
+            "transitions_received": feed.received,
+            "transitions_learned": dict(feed.learned),  # per actor stream, in order, without a gap
+            "transitions_duplicate": feed.duplicates,  # sent again (or cached) after it was taken
+            "transitions_out_of_order": feed.out_of_order,  # after a gap: taken when sent again
+            "transitions_lost": feed.lost,  # dropped by an actor before this learner had them
+        }
 
     def wake(self) -> None:
         if not self.stream:

@@ -109,6 +109,9 @@ class AdaptiveH:
         # exploration and step-size schedules on from where the source left them.
         self.started_from: dict | None = None
         self.schedule_offset = 0
+        # Learning from actors: each actor stream's transitions learned, in order (deploy.transition_stream);
+        # saved with the policy, so a resumed learner asks for exactly what it lacks.
+        self.stream_marks: dict[str, int] = {}
         self.nonfinite_skipped = 0
         # advantage_lambda > 0: samples whose λ-advantage is still accruing [s, score, advantage, weight],
         # and the matured (state, gradient) pairs that the next segment update applies.
@@ -520,6 +523,7 @@ class AdaptiveH:
             "trained_on": self.trained_on.to_dict(),
             "started_from": self.started_from,
             "schedule_offset": self.schedule_offset,
+            "stream_marks": dict(self.stream_marks),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -535,6 +539,7 @@ class AdaptiveH:
         self.nonfinite_skipped = state["nonfinite_skipped"]
         self.started_from = state.get("started_from")
         self.schedule_offset = state.get("schedule_offset", 0)
+        self.stream_marks = dict(state.get("stream_marks", {}))
         self._pending = deque([list(e) for e in state.get("pending", [])])
         self._matured = list(state.get("matured", []))
         if self.replay is not None and state.get("replay") is not None:

@@ -32,7 +32,7 @@ class AdaptiveHConfig(Section):
     sigma: float = Field(0.3, gt=0)  # exploration std, as a fraction of the action half-range
     # Schedules, linear from sigma / alpha over schedule_steps, then constant (None: constant). The score
     # keeps sigma's Σ⁻¹, so a smaller std also shrinks the step like a natural gradient's; with the
-    # annealed Σ⁻¹ the step grew as 1/std and NS Pendulum runs diverged (README, "The learner").
+    # annealed Σ⁻¹ the step grew as 1/std and NS Pendulum runs diverged (docs/learner_measurements.md).
     sigma_final: float | None = Field(None, gt=0)
     alpha_final: float | None = Field(
         None,
@@ -105,7 +105,7 @@ class AdaptiveHConfig(Section):
     # tolerance unseen (NS Reach: 18 cm wide on the relative coordinates, 5 cm success radius). One factor
     # applies on the dimensions where the policy's kernel is narrowest (every one when it has one width;
     # NS Reach: the relative coordinates), or give one per dimension. 0.15: the plans bench's best
-    # single factor on every setting (README "The plan retreat"), so no task sets its own.
+    # single factor on every setting (docs/learner_plans.md), so no task sets its own.
     plan_kernel_scale: Scale | list[Scale] = 0.15
     # ``noise_floor`` (default) widens that kernel by the sensor noise measured along plans, so noise alone
     # retreats on at most ``plan_false_alarm`` of ticks; ``fixed`` keeps it as it is; ``learned``

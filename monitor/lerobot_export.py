@@ -223,13 +223,13 @@ def _episodes_of(transitions: list[m.Transition]) -> Iterator[list[m.Transition]
 
 
 def _once(transitions: list[m.Transition]) -> list[m.Transition]:
-    """Each executed tick once. An actor may publish a Transition again (a resend to a learner that lacks
-    it), with a new ``seq`` and stamp but the same step and values: the first copy, in stamp order,
-    stands for the tick."""
+    """Each executed tick once. An actor publishes a Transition again to a learner that lacks it
+    (``deploy.transition_stream``), with a new ``seq`` and stamp, on the same stream with the same step:
+    the first copy, in stamp order, stands for the tick."""
     seen: set[tuple] = set()
     out = []
     for tr in transitions:
-        ident = (tr.episode, tr.step, tuple(tr.obs), tuple(tr.next_obs), tr.reward)
+        ident = (tr.stream, tr.step)
         if ident not in seen:
             seen.add(ident)
             out.append(tr)

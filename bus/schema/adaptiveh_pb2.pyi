@@ -413,7 +413,7 @@ class PolicySnapshot(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., version: _Optional[int] = ..., state_dim: _Optional[int] = ..., action_dim: _Optional[int] = ..., policy_centers: _Optional[_Iterable[float]] = ..., policy_weights: _Optional[_Iterable[float]] = ..., field_centers: _Optional[_Iterable[float]] = ..., field_weights: _Optional[_Iterable[float]] = ..., sigma: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Transition(_message.Message):
-    __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise")
+    __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise", "stream", "first_kept")
     class SegmentEnd(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         SEGMENT_END_UNSPECIFIED: _ClassVar[Transition.SegmentEnd]
@@ -446,6 +446,8 @@ class Transition(_message.Message):
     TARGET_AGE_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
     NOISE_FIELD_NUMBER: _ClassVar[int]
+    STREAM_FIELD_NUMBER: _ClassVar[int]
+    FIRST_KEPT_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     step: int
@@ -466,7 +468,27 @@ class Transition(_message.Message):
     target_age: float
     mac: bytes
     noise: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ...) -> None: ...
+    stream: str
+    first_kept: int
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ..., stream: _Optional[str] = ..., first_kept: _Optional[int] = ...) -> None: ...
+
+class TransitionAck(_message.Message):
+    __slots__ = ("seq", "stamp", "stream", "learned", "saved", "learner", "mac")
+    SEQ_FIELD_NUMBER: _ClassVar[int]
+    STAMP_FIELD_NUMBER: _ClassVar[int]
+    STREAM_FIELD_NUMBER: _ClassVar[int]
+    LEARNED_FIELD_NUMBER: _ClassVar[int]
+    SAVED_FIELD_NUMBER: _ClassVar[int]
+    LEARNER_FIELD_NUMBER: _ClassVar[int]
+    MAC_FIELD_NUMBER: _ClassVar[int]
+    seq: int
+    stamp: float
+    stream: str
+    learned: int
+    saved: int
+    learner: str
+    mac: bytes
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., stream: _Optional[str] = ..., learned: _Optional[int] = ..., saved: _Optional[int] = ..., learner: _Optional[str] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Rejected(_message.Message):
     __slots__ = ("key", "error", "data")

@@ -85,7 +85,10 @@ SAMPLES = [
         policy_version=40,
         statistic=0.2,
         target_age=0.12,
+        stream="a1b2c3d4",
+        first_kept=3,
     ),
+    m.TransitionAck(stream="a1b2c3d4", learned=6, saved=4, learner="e5f6"),
 ]
 
 

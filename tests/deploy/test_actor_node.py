@@ -3,7 +3,8 @@
 robot-io (PyBullet) and the actor run as processes; the test is the vision part (it relays the
 simulator's target, and can make it stale) and, where needed, starts a learner. What is checked: plans
 are decided and played while the learner is stopped (SIGSTOP) for longer than a plan, and a learner killed
-outright loses at most the segment it was in; a policy snapshot that is malformed, unsigned or older is
+outright and started again loses no transition (it resumes from its checkpoint and the actor sends it
+the rest); a policy snapshot that is malformed, unsigned or older is
 refused with a safety event while the policy in use keeps running; a stale target is never used as fresh.
 """
 
@@ -50,6 +51,7 @@ class Bench(BusProbe):
         self.states = self.collect(m.STATE)
         self.chunks = self.collect(m.CMD_CHUNK)
         self.segments = self.collect(m.EVENTS_RETREAT, arrival=False)
+        self.acks = self.collect(m.TRANSITION_ACKS, arrival=False)
         self._target = self.bus.publisher(m.TARGET)
         self.bus.subscribe(m.TARGET_TRUTH, self._relay)
 
@@ -135,7 +137,7 @@ def _learner(cfg: dict, tmp_path: Path, token: str) -> subprocess.Popen:
     )
 
 
-def test_plans_play_while_the_learner_is_stopped_and_a_killed_learner_loses_at_most_a_segment(arm, tmp_path):
+def test_plans_play_while_the_learner_is_stopped_and_a_killed_learner_loses_no_transition(arm, tmp_path):
     cfg, bench, token = arm
     learner = _learner(cfg, tmp_path, token)
     try:
@@ -161,9 +163,27 @@ def test_plans_play_while_the_learner_is_stopped_and_a_killed_learner_loses_at_m
         learner.wait(10)
         with bench.lock:
             announced = max(e.global_step for e in bench.segments)
-        with open(Path(cfg["learner"]["checkpoint_dir"]) / "checkpoint.pkl", "rb") as fh:
+            played = max(t.step for t in bench.transitions) + 1  # by the actor, when the learner died
+            dead = {a.learner for a in bench.acks}
+        ckpt = Path(cfg["learner"]["checkpoint_dir"]) / "checkpoint.pkl"
+        with open(ckpt, "rb") as fh:
             kept = pickle.load(fh)["log"]["global_step"]
         assert kept >= announced, f"checkpoint at step {kept}, segment announced at {announced}"
+        # The actor plays on; a new learner resumes from the checkpoint and gets every transition after
+        # it, once each, in order: those the dead one learned unsaved, and those of the outage.
+        time.sleep(2.0)
+        learner = _learner(cfg, tmp_path, token)
+        bench.wait(
+            lambda: any(a.learner not in dead and a.learned >= played + 60 for a in bench.acks),
+            60,
+            "the new learner to learn past the outage",
+        )
+        learner.terminate()
+        assert learner.wait(30) == 0, learner.stderr.read()
+        with open(ckpt, "rb") as fh:
+            state = pickle.load(fh)
+        (learned,) = state["stream_marks"].values()
+        assert learned >= played + 60 and state["log"]["global_step"] == learned, (learned, state["log"])
     finally:
         learner.kill()
         learner.wait(10)

@@ -1,0 +1,124 @@
+"""An actor's transitions reach its learner in order and once each, over real Zenoh, though the learner
+restarts from a checkpoint in between (``deploy.transition_stream``); an outbox that overflows says how
+many it dropped and the learner skips exactly those."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+from loopback import unique_name
+from polling import wait_until
+
+from bus import messages as m
+from bus.transport import Bus, ZenohConfig, open_session
+from deploy.transition_stream import RESEND_AFTER_S, Inbox, Outbox
+
+
+@pytest.fixture
+def arm(endpoint) -> Iterator[tuple[Bus, Callable[[], Bus]]]:
+    """The actor's bus, and a maker of learner processes' buses beside it (closed at the end)."""
+    name = unique_name("ts")
+    actor = Bus(open_session(ZenohConfig(listen=(endpoint,))), name)
+    learners: list[Bus] = []
+
+    def learner() -> Bus:
+        learners.append(Bus(open_session(ZenohConfig(connect=(endpoint,))), name))
+        return learners[-1]
+
+    yield actor, learner
+    for bus in learners:
+        bus.close()
+    actor.close()
+
+
+def _tick() -> m.Transition:
+    return m.Transition(reward=-1.0, end=m.Transition.OPEN)
+
+
+def _outbox(bus: Bus, limit: int = 1000) -> Outbox:
+    outbox = Outbox(bus.publisher(m.TRANSITIONS), limit)
+    bus.subscribe(m.TRANSITION_ACKS, outbox.on_ack)
+    return outbox
+
+
+def _learn(inbox: Inbox, outbox: Outbox, until: int, timeout: float = 15.0) -> list[int]:
+    """The steps the learner takes until it has learned ``until`` of the stream (the actor sending again
+    what it lacks, as its control loop does after each tick)."""
+    steps: list[int] = []
+    deadline = time.monotonic() + timeout
+    while inbox.learned.get(outbox.stream, 0) < until:
+        assert time.monotonic() < deadline, f"learned {inbox.learned}, steps {steps[-5:]}"
+        inbox.ack()
+        outbox.resend()
+        t = inbox.get(timeout=0.05)
+        if t is not None:
+            steps.append(t.step)
+            inbox.learned_one(t)
+    return steps
+
+
+def _wait_matched(bus: Bus) -> None:
+    pub = bus.session.declare_publisher(bus.key(m.TRANSITIONS))
+    try:
+        wait_until(lambda: pub.matching_status.matching, 10, "the learner's subscription")
+    finally:
+        pub.undeclare()
+
+
+def test_a_learner_that_restarts_from_its_checkpoint_gets_every_transition_once_in_order(arm):
+    actor, learner = arm
+    outbox = _outbox(actor)
+    dies = learner()
+    first = Inbox(dies, {})
+    _wait_matched(actor)
+    for _ in range(40):
+        outbox.send(_tick())
+    assert _learn(first, outbox, 30) == list(range(30))  # it may have taken a few more
+    first.checkpointed({outbox.stream: 20})  # the checkpoint holds 0..19: the actor forgets those
+    wait_until(lambda: outbox.unsaved() == outbox.sent - 20, 10, "the actor to forget what is saved")
+    dies.close()  # the learner dies; the actor plays on; a new learner process resumes from the checkpoint
+    for _ in range(25):
+        outbox.send(_tick())
+    second = Inbox(learner(), {outbox.stream: 20})
+    _wait_matched(actor)
+    second.ack(force=True)  # a new learner says where it stands: the actor sends from there at once
+    assert _learn(second, outbox, 65) == list(range(20, 65))  # no gap, no repeat
+    assert second.lost == outbox.lost == 0 and outbox.resent >= 40 - 20
+
+
+def test_an_outbox_that_overflows_counts_the_dropped_and_the_learner_skips_exactly_those(arm):
+    actor, learner = arm
+    outbox = _outbox(actor, limit=100)
+    dropped = [outbox.send(_tick()) for _ in range(150)]  # no learner hears these
+    assert dropped == [False] * 100 + [True] * 50 and outbox.lost == 50 and outbox.unsaved() == 100
+    inbox = Inbox(learner(), {})
+    _wait_matched(actor)
+    assert _learn(inbox, outbox, 150) == list(range(50, 150))  # a new learner: sent again at once
+    assert inbox.lost == 50
+
+
+def test_a_transition_lost_on_the_way_is_sent_again_once_the_learner_waits_for_it(arm):
+    actor, learner = arm
+    publish = actor.publisher(m.TRANSITIONS)
+    lost_once: list[int] = []
+
+    def lossy(msg: m.Transition) -> None:
+        if msg.step == 5 and not lost_once:
+            lost_once.append(msg.step)  # the network ate it
+            return
+        publish(msg)
+
+    outbox = Outbox(lossy, 1000)
+    actor.subscribe(m.TRANSITION_ACKS, outbox.on_ack)
+    inbox = Inbox(learner(), {})
+    _wait_matched(actor)
+    inbox.ack(force=True)
+    wait_until(lambda: outbox.resend() == 0 and outbox._learner == inbox.learner, 10, "the first ack")
+    for _ in range(10):
+        outbox.send(_tick())
+    started = time.monotonic()
+    assert _learn(inbox, outbox, 10) == list(range(10))  # 6..9 refused until 5 came again
+    assert time.monotonic() - started >= RESEND_AFTER_S and inbox.out_of_order >= 1
+    assert outbox.resent >= 5 and lost_once == [5]
