@@ -7,11 +7,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from experiments.figures import MAX_WIDTH_IN, _kilo_steps, _save
+from experiments.figures import DPI, MAX_WIDTH_IN, _kilo_steps, _save
 from experiments.plans import DEFAULT_METHOD, PlansPlan
 
-POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "black", "tab:gray", "tab:green", "tab:pink"]
-DEFAULT_COLOR = "gold"  # the default (issue #33) stands out in every panel
+POINT_COLORS = ["tab:red", "tab:orange", "tab:brown", "black", "tab:gray", "tab:green", "tab:pink", "navy"]
+DEFAULT_COLOR = "gold"  # the default stands out in every panel
 
 
 def point_colors(methods: list[str]) -> list[str]:
@@ -63,7 +63,7 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
             color=color,
             mec="black" if color == DEFAULT_COLOR else color,
             capsize=2,
-            label=f"{p['label']}: {p['vs_front']['position']}",
+            label=p["label"],
         )
     closed_at = {}  # the closed-loop points, side by side right of H = 1 so they do not hide it
     for k, (algo, b) in enumerate(s["baselines"].items()):
@@ -94,7 +94,7 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
             markersize=7,
             color=color,
             capsize=2,
-            label=f"{b['label']}, plan mode (n={b['n']}): {b['vs_front']['position']}",
+            label=f"{b['label']}, plan mode (n={b['n']})",
         )
         if b["algo"] in closed_at:  # the same algorithm from its closed loop to plan mode
             cx, cy = closed_at[b["algo"]]
@@ -114,7 +114,25 @@ def _front_panel(ax: Any, s: dict[str, Any]) -> None:
     ax.set_title(f"{s['label']} ({s['steps']:,} steps)")
     ax.set_xlabel("re-plans per 100 steps (log)")
     ax.set_ylabel("final return (last 10 % of steps)")
-    ax.legend(fontsize=6)
+
+
+def _shared_legend(fig: Any, axes: Any, rows: int) -> None:
+    """One legend for every panel, below them: in the panels it hid the points (each label once)."""
+    handles: dict[str, Any] = {}
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, handle)
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.17 / rows, 1, 1))
+
+
+def _save_laid_out(fig: Any, path: Path) -> Path:
+    """Save a figure whose layout is set (``_save`` would lay it out again over the shared legend)."""
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
 
 
 def make_plans_figures(plan: PlansPlan | None, summary: dict[str, Any], out_dir: Path) -> list[Path]:
@@ -127,16 +145,17 @@ def make_plans_figures(plan: PlansPlan | None, summary: dict[str, Any], out_dir:
     settings = list(summary["settings"])
     cols = min(3, len(settings))
     rows = -(-len(settings) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(min(5.5 * cols, MAX_WIDTH_IN), 4.3 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(min(5.5 * cols, MAX_WIDTH_IN), 4.8 * rows), squeeze=False)
     for ax, key in zip(axes.flat, settings, strict=False):
         _front_panel(ax, summary["settings"][key])
     for ax in list(axes.flat)[len(settings) :]:
         ax.axis("off")
     fig.suptitle(
         "Plan execution: return vs re-plans per 100 steps; fixed-H front (mean, 95% band), AdaptiveH and "
-        "the baselines in plan mode"
+        "the baselines in plan mode\n(each point's verdict against the front: summary.md beside this figure)"
     )
-    paths.append(_save(fig, out_dir / "front.png"))
+    _shared_legend(fig, axes, rows)
+    paths.append(_save_laid_out(fig, out_dir / "front.png"))
 
     lat = summary["latency"]
     fig, axes = plt.subplots(
