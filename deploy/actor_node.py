@@ -27,8 +27,9 @@ from bus.node import Node
 from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
 from deploy.policy_wire import snapshot_from_message
+from deploy.robot_link import LinkStopped
 from deploy.transition_stream import Outbox
-from deploy.zenoh_env import EnvStopped, ZenohReachEnv, env_settings
+from deploy.zenoh_env import ZenohReachEnv, env_settings
 from learner.acting import SegmentLoop, Tick
 from learner.actor import Actor
 from learner.config import AdaptiveHConfig, rkhs_config
@@ -122,14 +123,14 @@ class ActorNode(Node):
         return {"act": self._act}
 
     def wake(self) -> None:
-        self.env.stop.set()  # a reset or tick wait returns at once
+        self.env.link.stop.set()  # a reset or tick wait returns at once
 
     def _act(self) -> None:
         try:
             self._await_handoff()
             while not self.stopping:
                 self._episode()
-        except EnvStopped:
+        except LinkStopped:
             pass
         except Exception as exc:  # a takeover, a robot that never resets: the supervisor restarts us
             self.error = f"{type(exc).__name__}: {exc}"
@@ -208,11 +209,7 @@ class ActorNode(Node):
             "retreats": self.loop.ends[SegmentEnd.RETREAT],
             **self.loop.starts,
             "policy_version": self.actor.version,
-            **env.book.counts(),
-            "target_waits": env.target_waits,
-            "outage_ticks": env.outage_ticks,
-            "suspended_ticks": env.suspended_ticks,
-            "robot_restarts": env.robot_restarts,
+            **env.link.counts(),
             "plan_model_updates": self.actor.model.updates,  # ticks the plan model learned from
             "stream": self.outbox.stream,
             "transitions_unsaved": self.outbox.unsaved(),  # kept: the learner has not checkpointed them

@@ -32,9 +32,10 @@ from common.heap import release_free_heap
 from deploy.config import StackConfig
 from deploy.plan_channel import DelayedSender
 from deploy.policy_wire import snapshot_message
+from deploy.robot_link import LinkStopped, TakenOver
 from deploy.run_report import started_from
 from deploy.transition_stream import Inbox
-from deploy.zenoh_env import EnvStopped, ReachSpec, TakenOver, ZenohReachEnv, env_settings
+from deploy.zenoh_env import ReachSpec, ZenohReachEnv, env_settings
 from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
@@ -251,7 +252,7 @@ class LearnerNode(Node):
                     return self._gate()
 
                 self.agent.learn(max(self.cfg.steps - start, 0), callback=callback)
-        except EnvStopped:
+        except LinkStopped:
             log.info("stopped while the robot was held")
         except TakenOver as exc:
             log.error("%s", exc)  # the checkpoint is kept; the supervisor decides whether to start again
@@ -282,17 +283,13 @@ class LearnerNode(Node):
         return out
 
     def _robot_counts(self) -> dict[str, Any]:
-        env = self.env
+        link = self.env.link
         return {
-            "session": env.session.id,
-            "refused_chunks": dict(env.refused),
-            **env.book.counts(),
-            "chunk_preemptions": env.book.preemptions,  # the names older results and benches read
-            "dropped_actions": env.book.dropped_planned,
-            "target_waits": env.target_waits,
-            "outage_ticks": env.outage_ticks,
-            "suspended_ticks": env.suspended_ticks,
-            "robot_restarts": env.robot_restarts,
+            "session": link.session.id,
+            "refused_chunks": dict(link.refused),
+            **link.counts(),
+            "chunk_preemptions": link.book.preemptions,  # the names older results and benches read
+            "dropped_actions": link.book.dropped_planned,
         }
 
     def _stream_counts(self) -> dict[str, Any]:
@@ -308,4 +305,4 @@ class LearnerNode(Node):
 
     def wake(self) -> None:
         if not self.stream:
-            self.env.stop.set()  # a step or reset blocked on a held robot returns at once
+            self.env.link.stop.set()  # a step or reset blocked on a held robot returns at once

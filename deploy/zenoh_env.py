@@ -22,15 +22,14 @@ robot's next
 control tick as an executed step, from the ``state`` stream, which names the tick and the chunk action
 it played: every tick once, in order, a tick with nothing queued as a hold (plan -1, zero action);
 ticks while the operator has the arm e-stopped or paused are not steps of the task and are passed over.
-``dropped_planned`` counts planned actions a newer plan preempted, as the robot reports them.
+What the robot reports, the takeover and the book of plans sent are the env's ``link``
+(``deploy.robot_link.RobotLink``); the env is the task on top of it.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -39,11 +38,10 @@ import gymnasium as gym
 import numpy as np
 
 from bus import messages as m
-from bus.learner_session import REFUSALS, LearnerSession
 from bus.transport import Bus
-from common.errors import AdaptiveHError
 from deploy.config import StackConfig
-from deploy.plan_channel import PlanBook, played
+from deploy.plan_channel import played
+from deploy.robot_link import SUSPENDED, LinkStopped, RobotLink, seen_at
 from learner.plans import Executed, Plan
 from learner.segments import Opening, opening
 from robot_io.step_cap import cap_step_length
@@ -61,21 +59,8 @@ from tasks.reach import (
 
 log = logging.getLogger(__name__)
 NO_PREDICTION = np.zeros((0, 0))  # a closed-loop chunk carries no predicted path
-SUSPENDED = ("estop", "paused", "fault")  # robot modes in which a tick is not a step of the task
-WHY_REFUSED = {
-    "foreign": "another learner session has the arm",
-    "forged": "our signature is not robot-io's: is the learner's operator token the stack's?",
-}
 MAX_REFUSED_IN_A_ROW = 64  # more than a forgery inside robot.max_chunk_seq_gap can cost: not a glitch
 MAX_SIGNED_REFUSED = 3  # signed chunks that timed out refused while the arm runs: a wrong token
-
-
-class EnvStopped(AdaptiveHError, RuntimeError):
-    """The node is shutting down while ``step`` waited for a held robot."""
-
-
-class TakenOver(AdaptiveHError, RuntimeError):
-    """robot-io obeys another learner session now: this one's chunks are refused as foreign."""
 
 
 Planner = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
@@ -128,32 +113,20 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
     )
 
 
-def _seen_at(target: m.Target | None) -> float:
-    """When the target was observed: the camera frame's time, else the message's (ground truth)."""
-    if target is None:
-        return -np.inf
-    return target.frame_stamp if target.frame_stamp > 0 else target.stamp
-
-
 def target_at(target: m.Target, when: float, horizon_s: float) -> tuple[np.ndarray, float]:
     """(the target's position at time ``when``, its fix's age then): the fix moved on at its velocity.
 
     A state and a target are captured at different times (a camera frame is 50-250 ms older than the
     robot's state); the observation pairs the state with where the target is then, not where it was.
     The age used is at most ``horizon_s`` (the freshness limit: an older fix is not acted on at all)."""
-    age = max(0.0, when - _seen_at(target))
+    age = max(0.0, when - seen_at(target))
     position = np.asarray(target.position, float) + np.asarray(target.velocity, float) * min(age, horizon_s)
     return position, age
 
 
 def _usable(target: m.Target | None, when: float, limit_s: float) -> bool:
     """A fix not older than ``limit_s`` at time ``when`` (a state's stamp)."""
-    return target is not None and when - _seen_at(target) <= limit_s
-
-
-def _fixed_since(target: m.Target | None, stamp: float) -> bool:
-    """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
-    return target is not None and target.status == m.Target.TRACKING and _seen_at(target) >= stamp
+    return target is not None and when - seen_at(target) <= limit_s
 
 
 class ReachSpec(gym.Env):
@@ -192,155 +165,28 @@ class ReachSpec(gym.Env):
 
 
 class ZenohReachEnv(ReachSpec):
-    """The reach task over Zenoh. ``paused`` (set by the learner node) makes ``step`` wait."""
+    """The reach task over Zenoh, on a :class:`deploy.robot_link.RobotLink` to the robot."""
 
     def __init__(self, bus: Bus, settings: EnvSettings, planner: Planner | None = None) -> None:
         """A ``bus`` with the stack's key signs this learner's chunks (``bus.signing``)."""
         super().__init__(settings)
         self.bus = bus
         self.planner = planner
+        # The robot's ticks not yet read: every one for an actor (``advance``, with the target then
+        # known); closed loop, those since the last chunk went out, bounded while no step waits.
+        keep = None if settings.execution == "plan" else 1024
+        target_topic = m.TOPICS[settings.target_topic]
+        self.link = RobotLink(bus, target_topic, settings.target_timeout_s, settings.max_step_m, keep)
         self.segment = 0  # closed loop: the segment the next chunk belongs to (``open_segment``)
         self._opening = Opening.FIRST  # closed loop: why the next chunk's segment began, until it is sent
-        self._cond = threading.Condition()
-        self._state: m.RobotState | None = None
-        self._state_count = 0
-        self._target: m.Target | None = None
-        self._target_lost = False
-        self.target_waits = 0  # target outages waited out
-        self.outage_ticks = 0  # an actor's: robot ticks passed over while the target was lost
-        self.chunk_seq = -1  # the last chunk sent
+        self._plans_sent = 0  # closed loop: each step's chunk is plan number ``_plans_sent``
         self.global_step = 0
         self._steps = 0
-        self.stop = threading.Event()  # set by the node to abandon a step blocked on a held robot
-        # The robot's ticks not yet read (an actor's: by ``advance``, with the target then known; closed
-        # loop: since the last chunk went out, bounded while no step waits), and the plans sent.
-        self.plan_mode = settings.execution == "plan"
-        self._ticks: deque[tuple[m.RobotState, m.Target | None]] = deque(
-            maxlen=None if self.plan_mode else 1024
-        )
-        self._buffered_tick = -1  # the newest tick buffered (a state between ticks repeats it)
-        self._last_state: m.RobotState | None = None  # of the last tick ``advance`` returned
-        self.suspended_ticks = 0
-        self.book = PlanBook()
-        # This learner's session: its chunks are numbered from 0 and obeyed once ``reset`` has taken over.
-        self.session = LearnerSession(bus)
-        self.refused: dict[str, int] = {}  # own chunks robot-io refused, by verdict
-        self._plans_sent = 0  # closed loop: each step's chunk is plan number ``_plans_sent``
-        self._taken_over_by = ""
-        self._obeyed_since_tick: int | None = None  # the tick of our takeover (reset); None before it
-        self._instance = ""  # the robot-io process whose states these are (RobotState.instance)
-        self.robot_restarts = 0  # robot-io processes that replaced the one before (each ends an episode)
-        self._restarted = False  # a new robot-io since the last step: the episode ends, a reset takes over
-        self.target_topic = m.TOPICS[settings.target_topic]
-        bus.subscribe(m.STATE, self._on_state)
-        bus.subscribe(self.target_topic, self._on_target)
-        bus.subscribe(m.CHUNK_STATUS, self._on_status)
-
-    # -- Zenoh callbacks -----------------------------------------------------------------------------
-    def _on_state(self, msg: m.RobotState) -> None:
-        with self._cond:
-            if msg.instance != self._instance:
-                self._new_robot_io(msg.instance)
-            self._state = msg
-            self._state_count += 1
-            since = self._obeyed_since_tick
-            if since is not None and msg.tick > since and not self.session.mine(msg):
-                self._taken_over_by = msg.session or "(none)"  # the arm obeys another session since ours
-            if msg.tick > self._buffered_tick:
-                self._buffered_tick = msg.tick
-                self._ticks.append((msg, self._target))
-            self._cond.notify_all()
-
-    def _new_robot_io(self, instance: str) -> None:
-        """A robot-io process that is not the one before (a restart): its ticks count from 0 and it obeys
-        no session yet, so the tick bookkeeping starts over and the episode ends at the next step (the
-        reset that follows takes the new process over). Caller holds the lock."""
-        if self._instance:
-            log.warning("robot-io restarted (%s after %s): ending the episode", instance, self._instance)
-            self.robot_restarts += 1
-            self._restarted = True
-        self._instance = instance
-        self._buffered_tick = -1
-        self._obeyed_since_tick = None
-        self._ticks.clear()
-
-    def _consume_restart(self) -> bool:
-        """Whether robot-io restarted since the last call (then this step ends the episode)."""
-        with self._cond:
-            restarted, self._restarted = self._restarted, False
-        return restarted
-
-    def _on_target(self, msg: m.Target) -> None:
-        with self._cond:
-            self._target_lost = not msg.valid
-            if msg.valid:
-                self._target = msg
-            self._cond.notify_all()
-
-    def _target_fresh(self) -> bool:
-        """The newest target report is a valid fix observed within ``target_timeout_s``."""
-        age = time.time() - _seen_at(self._target)
-        return not self._target_lost and age <= self.settings.target_timeout_s
-
-    def _await_target(self) -> None:
-        """Block until the target is fresh again: a lost or stale target is never acted on (vision down,
-        the target out of view). The wait is logged once per outage."""
-        if self._wait(self._target_fresh, 0.0):
-            return
-        log.warning("target lost or stale on %s; waiting for a fresh fix", self.bus.key(self.target_topic))
-        t0 = time.monotonic()
-        while not self._wait(self._target_fresh, 1.0):
-            pass
-        self.target_waits += 1
-        log.warning("target back after %.1f s", time.monotonic() - t0)
-
-    def _on_status(self, msg: m.ChunkStatus) -> None:
-        if not self.session.mine(msg):
-            return  # another session's chunk (a stranger, or the learner before a restart)
-        verdict = m.label(msg, "verdict")
-        if verdict in REFUSALS:
-            self._on_refused(msg, verdict)
-            return
-        self.book.on_status(msg)
-
-    def _on_refused(self, msg: m.ChunkStatus, verdict: str) -> None:
-        """robot-io refused our chunk: say so (once per kind, then every 100th), let a waiting step resend."""
-        self.book.on_refused(msg)
-        with self._cond:
-            n = self.refused[verdict] = self.refused.get(verdict, 0) + 1
-            self._cond.notify_all()
-        if n == 1 or n % 100 == 0:
-            log.warning(
-                "robot-io refused our chunk %d as %s (%d so far): %s",
-                msg.chunk_seq,
-                verdict,
-                n,
-                WHY_REFUSED.get(verdict, "a forged or corrupted chunk number got in before ours; resending"),
-            )
-
-    # -- helpers -------------------------------------------------------------------------------------
-    @property
-    def robot_mode(self) -> str:
-        return m.label(self._state, "mode") if self._state is not None else "unknown"
 
     @property
     def dropped_planned(self) -> int:
         """Planned actions that a newer plan preempted on the robot, total (the PlanChannel's count)."""
-        return self.book.dropped_planned
-
-    def _wait(self, pred: Callable[[], bool], timeout: float) -> bool:
-        """Wait for ``pred`` up to ``timeout``; ``EnvStopped`` as soon as the node is stopping."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                if self.stop.is_set():
-                    raise EnvStopped("stopped while waiting for the robot")
-                left = deadline - time.monotonic()
-                # Short slices: a stop request sets an Event, which does not wake this condition.
-                if self._cond.wait_for(pred, min(max(left, 0.0), 0.25)):
-                    return True
-                if left <= 0:
-                    return False
+        return self.link.book.dropped_planned
 
     def _observe(
         self, state: m.RobotState | None = None, target: m.Target | None = None
@@ -351,9 +197,9 @@ class ZenohReachEnv(ReachSpec):
         arm reaches it a few periods later (franky-sim: 3-4), and a reward on the measured hand scored
         each action by the ones before it: learning drove the arm away from the target (docs/handoff.md).
         Distance and success are the measured hand's. On the mock the two are one (``ee_cmd = ee_pos``)."""
-        with self._cond:
-            state = self._state if state is None else state
-            target = self._target if target is None else target
+        with self.link.cond:
+            state = self.link.state if state is None else state
+            target = self.link.target if target is None else target
         assert state is not None and target is not None
         ee = np.asarray(state.ee_pos)
         position, age = target_at(target, state.stamp, self.settings.target_timeout_s)
@@ -367,7 +213,7 @@ class ZenohReachEnv(ReachSpec):
             "global_step": self.global_step,
             "target_speed": float(np.linalg.norm(target.velocity)),
             "target_age_s": age,
-            "dropped_total": self.book.dropped_planned,
+            "dropped_total": self.link.book.dropped_planned,
             "tick": state.tick,  # the robot's control tick the observation is from
         }
         return obs, reward, info
@@ -376,43 +222,7 @@ class ZenohReachEnv(ReachSpec):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Home pose via the ``reset`` queryable; a seed gives the (simulated) target a new motion."""
         gym.Env.reset(self, seed=seed)  # seeds np_random (ReachSpec.reset refuses: it has no robot)
-        deadline = time.monotonic() + self.settings.reset_timeout_s
-        while True:
-            if self.stop.is_set():
-                raise EnvStopped("stopped while resetting the robot")
-            try:
-                reply = self.session.reset(
-                    seed if seed is not None else -1, timeout=min(10.0, self.settings.reset_timeout_s)
-                )
-                if reply.ok:
-                    break
-                err = reply.detail
-            except (TimeoutError, m.MessageError) as exc:
-                err = str(exc)
-            if self.robot_mode in SUSPENDED:  # robot-io refuses to home an e-stopped, paused or faulted
-                deadline = time.monotonic() + self.settings.reset_timeout_s  # arm: the operator decides
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"robot reset failed: {err}")
-            time.sleep(0.5)
-        state = reply.state
-        with self._cond:
-            if state.instance != self._instance:
-                self._new_robot_io(state.instance)
-            self._restarted = False  # this reset took the robot-io that answered it over
-            self._taken_over_by = ""  # the reset made this session the one the arm obeys
-            self._obeyed_since_tick = state.tick
-            if state.tick >= (self._state.tick if self._state is not None else -1):
-                self._state = state
-        # Only a target detected after the reset: a reset moves the (simulated) target, and the last
-        # message from before it (or the tracker coasting on the old track) put 20-40 cm jumps inside
-        # episodes (measured), which wrecked the critic.
-        if not self._wait(lambda: _fixed_since(self._target, state.stamp), self.settings.reset_timeout_s):
-            raise TimeoutError(f"no valid target on {self.bus.key(self.target_topic)} since the reset")
-        with self._cond:
-            # The episode starts at the newest tick (the arm held since the reset: nothing queued);
-            # ``advance`` returns the ticks after it, each paired with a target from after the reset.
-            self._ticks.clear()
-            self._last_state = self._state
+        self.link.reset(seed, self.settings.reset_timeout_s)
         self._steps = 0
         self._opening = Opening.FIRST
         obs, _, info = self._observe()
@@ -431,10 +241,11 @@ class ZenohReachEnv(ReachSpec):
         return cap_step_length(np.vstack([action[None, :], tail.reshape(n, 3)]), self.settings.max_step_m)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        link = self.link
         action = np.clip(
             np.asarray(action, float).reshape(3), -self.settings.max_step_m, self.settings.max_step_m
         )
-        self._await_target()
+        link.await_target()
         obs_now, _, _ = self._observe()
         chunk = self._chunk(obs_now, action)
         if self.settings.latency_ms > 0:
@@ -446,39 +257,39 @@ class ZenohReachEnv(ReachSpec):
         refused_in_a_row = 0
         restarted = False
         while True:
-            if self.stop.is_set():
-                raise EnvStopped("stopped while waiting for the robot")
-            if self._consume_restart():
+            if link.stop.is_set():
+                raise LinkStopped("stopped while waiting for the robot")
+            if link.consume_restart():
                 restarted = True  # the chunk went to a process that is gone: the episode ends here
                 break
-            self._check_taken_over()
+            link.check_taken_over()
             if refused_in_a_row > (MAX_SIGNED_REFUSED if signed else MAX_REFUSED_IN_A_ROW):
-                raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {self.refused}")
+                raise RuntimeError(f"robot-io refused {refused_in_a_row} chunks in a row: {link.refused}")
             plan = Plan(
                 self._plans_sent, chunk, chunk, NO_PREDICTION, segment=self.segment, opened_by=self._opening
             )
             self._plans_sent += 1
-            with self._cond:
-                self._ticks.clear()  # only a tick after the chunk went out can have played it
-                tick0 = self._state.tick if self._state is not None else -1
-            seq = self._publish_plan(plan)
+            with link.cond:
+                link.ticks.clear()  # only a tick after the chunk went out can have played it
+                tick0 = link.state.tick if link.state is not None else -1
+            seq = link.publish(plan)
             outcome = self._await_played(plan.plan_id, seq, signed)
             if outcome == "played":
                 break
             if outcome == "refused":
                 refused_in_a_row += 1
                 continue  # stale or a jump (a forged number got in first): resend with the next one
-            if signed and self.robot_mode == "running" and self.book.refused(seq):
+            if signed and link.robot_mode == "running" and link.book.refused(seq):
                 refused_in_a_row += 1  # not played in time, and refused: e.g. a token that is not robot-io's
             # Not played: the arm is held (the watchdog after a stall of ours, a lost peer), e-stopped or
             # paused, the chunk was cut before it played, or another session took over (checked before
             # the resend). A watchdog hold lifts only with a fresh chunk, so a held arm gets one per
             # step timeout (refused harmlessly while another hold lasts); an e-stop, a pause or a fault
             # waits for the operator.
-            while not self._wait(lambda: self.robot_mode not in SUSPENDED or self.stop.is_set(), 0.5):
+            while not link.wait(lambda: link.robot_mode not in SUSPENDED or link.stop.is_set(), 0.5):
                 pass
             # At most one resend per tick: a "held" verdict comes before the state that shows the hold.
-            self._wait(lambda t=tick0: self._state is not None and self._state.tick > t, 2 * self.period)
+            link.wait(lambda t=tick0: link.state is not None and link.state.tick > t, 2 * self.period)
         self._opening = Opening.CONTINUE  # played: the segment's later chunks continue it
         self._steps += 1
         self.global_step += 1
@@ -491,47 +302,24 @@ class ZenohReachEnv(ReachSpec):
         first action (the tick's own report, read by ``played`` as ``advance`` reads it; the ticks it
         passes are the last chunk's tail), "refused" when robot-io refused it unsigned (signed, a refusal
         naming it is about a copy: see ``step``), "" for neither (held, suspended, taken over)."""
+        link = self.link
         deadline = time.monotonic() + self.settings.step_timeout_s
-        refused = lambda: not signed and self.book.refused(seq)  # noqa: E731
-        news = lambda: bool(self._ticks) or refused() or bool(self._taken_over_by)  # noqa: E731
-        while self._wait(news, max(deadline - time.monotonic(), 0.0)):
-            with self._cond:
-                ticks = list(self._ticks)
-                self._ticks.clear()
-            if any(played(state, self.book, self.session.id)[0] == plan_id for state, _ in ticks):
+        refused = lambda: not signed and link.book.refused(seq)  # noqa: E731
+        news = lambda: bool(link.ticks) or refused() or link.taken_over  # noqa: E731
+        while link.wait(news, max(deadline - time.monotonic(), 0.0)):
+            ticks = link.drain_ticks()
+            if any(played(state, link.book, link.session.id)[0] == plan_id for state, _ in ticks):
                 return "played"
-            if self._taken_over_by:
+            if link.taken_over:
                 return ""
             if refused():
                 return "refused"
         return ""
 
-    def _check_taken_over(self) -> None:
-        """Raise ``TakenOver`` when robot-io obeys another session: a learner never fights another one
-        for the arm behind the operator's back (its supervisor decides whether to start it again)."""
-        with self._cond:
-            other = self._taken_over_by
-        if other:
-            raise TakenOver(
-                f"robot-io obeys learner session {other[:16]!r}, not ours ({self.session.id}); stopping"
-            )
-
     # -- plan channel (learner.plans.PlanChannel) ----------------------------------------------------
     def send(self, plan: Plan) -> None:
         """Publish ``plan`` as one chunk; never blocks."""
-        self._publish_plan(plan)
-
-    def _publish_plan(self, plan: Plan) -> int:
-        actions = cap_step_length(np.reshape(plan.actions, (-1, 3)), self.settings.max_step_m)
-        predicted = np.asarray(plan.predicted, float)[1 : len(actions) + 1, 0:3]
-        msg = m.ActionChunk(
-            actions=actions.ravel().tolist(),
-            segment=plan.segment,
-            predicted_ee=predicted.ravel().tolist(),
-            opened_by=m.enum(m.ActionChunk, "opened_by", plan.opened_by),
-        )
-        self.chunk_seq = self.book.send(lambda: self.session.send(msg), plan, actions)
-        return self.chunk_seq
+        self.link.publish(plan)
 
     def _hold_for_target(self) -> None:
         """The target lost or stale: a plan made for a target we cannot see must not play on. A
@@ -540,47 +328,30 @@ class ZenohReachEnv(ReachSpec):
         (the next tick closes the segment)."""
         obs, _, _ = self._observe()
         stay = np.zeros((1, 3))
-        newest = self.book.newest()
+        newest = self.link.book.newest()
         segment = newest.plan.segment if newest is not None else 0
         here = np.stack([obs, obs])
-        self._publish_plan(Plan(-1, stay, stay, here, segment=segment, opened_by=Opening.TARGET_LOST))
-        self._await_target()
-        with self._cond:
-            self.outage_ticks += len(self._ticks)
-            self._ticks.clear()
-
-    def _next_tick(self) -> tuple[m.RobotState, m.Target | None]:
-        """The oldest tick not yet returned, waiting for it; ticks while suspended are passed over."""
-        while True:
-            if not self._wait(lambda: bool(self._ticks), self.settings.step_timeout_s):
-                log.warning("no robot state for %.1f s; waiting for robot-io", self.settings.step_timeout_s)
-                continue
-            with self._cond:
-                state, target = self._ticks.popleft()
-            if m.label(state, "mode") in SUSPENDED:
-                self.suspended_ticks += 1
-                continue
-            return state, target
+        self.link.publish(Plan(-1, stay, stay, here, segment=segment, opened_by=Opening.TARGET_LOST))
+        self.link.await_target()
+        self.link.outage_ticks += len(self.link.drain_ticks())
 
     def backlog(self) -> int:
         """Ticks that played and are not yet returned by ``advance`` (more than none: this side lags)."""
-        with self._cond:
-            return len(self._ticks)
+        return self.link.backlog()
 
     def advance(self) -> Executed:
         """The robot's next control tick as an executed step (see the module docstring)."""
-        self._check_taken_over()
+        link = self.link
+        link.check_taken_over()
         while True:
-            if not self._wait(self._target_fresh, 0.0):
+            if not link.wait(link.target_fresh, 0.0):
                 self._hold_for_target()
-            state, target = self._next_tick()
+            state, target = link.next_tick(self.settings.step_timeout_s)
             if _usable(target, state.stamp, self.settings.target_timeout_s):
                 break
-            self.outage_ticks += 1  # paired with a fix that went stale between the check and the tick
-        restarted = self._consume_restart()  # this tick is the new robot-io's: the episode ends with it
-        with self._cond:
-            self._last_state = state
-        plan_id, index, action = played(state, self.book, self.session.id)
+            link.outage_ticks += 1  # paired with a fix that went stale between the check and the tick
+        restarted = link.consume_restart()  # this tick is the new robot-io's: the episode ends with it
+        plan_id, index, action = played(state, link.book, link.session.id)
         self._steps += 1
         self.global_step += 1
         obs, reward, info = self._observe(state, target)

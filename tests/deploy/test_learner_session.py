@@ -36,7 +36,7 @@ def test_forged_chunks_neither_wedge_nor_speed_up_nor_steer(robot_hub):
 
     def forge() -> None:
         while not stop.wait(0.1):
-            seq, me = env.chunk_seq, env.session.id
+            seq, me = env.link.chunk_seq, env.link.session.id
             send_chunk(stranger, seq + 1, [FORGED_STEP], me)  # unsigned, the learner's next number
             send_chunk(stranger, seq + 10**6, [FORGED_STEP], me)  # an altered number
             send_chunk(stranger, seq + 1, [FORGED_STEP], "f" * 16)  # another session
@@ -67,8 +67,8 @@ def test_forged_chunks_neither_wedge_nor_speed_up_nor_steer(robot_hub):
     # One step per control tick at most: never faster than the arm (the wedge ran at 5x the rate).
     assert all(b > a for a, b in zip(ticks, ticks[1:], strict=False)), str(ticks)
     with probe.lock:
-        signed = {(c.seq, c.stamp) for c in chunks if c.session == env.session.id and authentic(c, key)}
-        played = [(s.played_chunk, s.played_stamp) for s in states if s.session == env.session.id]
+        signed = {(c.seq, c.stamp) for c in chunks if c.session == env.link.session.id and authentic(c, key)}
+        played = [(s.played_chunk, s.played_stamp) for s in states if s.session == env.link.session.id]
         kinds = [m.label(e, "kind") for e in events]
     played = [p for p in played if p[0] >= 0]
     assert len(played) >= n // 2 and set(played) <= signed, "the arm played a chunk the learner did not sign"
@@ -98,7 +98,7 @@ def test_a_forged_target_never_reaches_the_learner(robot_hub):
         seen = []
         for _ in range(20):
             env.step(np.zeros(3))
-            seen.append(list(env._target.position))
+            seen.append(list(env.link.target.position))
     finally:
         stop.set()
         thread.join()

@@ -71,20 +71,20 @@ def test_a_new_plan_drops_planned_motion_and_moves_the_arm_at_once(robot_hub):
         # The robot's account of the preempted plan: non-zero planned actions dropped, for the new plan.
         seqs = {
             sent.plan.plan_id: sent.seq
-            for sent in (env.book.get(env.chunk_seq - 1), env.book.get(env.chunk_seq))
+            for sent in (env.link.book.get(env.link.chunk_seq - 1), env.link.book.get(env.link.chunk_seq))
         }
         status = probe.wait(
             lambda: [
                 s
                 for s in probe.status
-                if s.session == env.session.id and s.chunk_seq == seqs[0] and s.preempted_by == seqs[1]
+                if s.session == env.link.session.id and s.chunk_seq == seqs[0] and s.preempted_by == seqs[1]
             ],
             3,
             "status",
         )[0]
         executed = sum(s.plan_id == 0 for s in steps)
         assert status.dropped == 30 - status.executed and status.dropped >= 30 - executed - 2
-        drop = probe.wait(lambda: list(env.book.drops), 3, "the env's account")[0]
+        drop = probe.wait(lambda: list(env.link.book.drops), 3, "the env's account")[0]
         assert (drop.plan_id, drop.by_plan_id, drop.dropped) == (0, 1, status.dropped)
         assert drop.moving == drop.dropped and drop.path_m == pytest.approx(0.012 * drop.dropped)
         assert env.dropped_planned == status.dropped
@@ -101,7 +101,7 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
     env = open_env(stack, probe.token, execution="closed_loop", chunk_len=5)
     try:
         env.reset(seed=3)
-        me = env.session.id
+        me = env.link.session.id
         env.step(np.array([0.0, 0.01, 0.0]))
         env.open_segment(4, "retreat")
         env.step(np.array([0.0, -0.01, 0.0]))
@@ -110,8 +110,9 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
         def cut() -> list[m.ChunkStatus]:
             return [s for s in probe.status if s.session == me and s.preempted_by >= 0 and s.dropped]
 
-        probe.wait(lambda: len(cut()) >= 2 and len(env.book.drops) >= 2, 5, "the status of the cut chunks")
-        drops = list(env.book.drops)
+        book = env.link.book
+        probe.wait(lambda: len(cut()) >= 2 and len(book.drops) >= 2, 5, "the status of the cut chunks")
+        drops = list(env.link.book.drops)
         with probe.lock:
             mine = [(c.seq, c.segment, m.label(c, "opened_by")) for c in chunks if c.session == me]
             first, second = cut()[:2]
@@ -127,6 +128,6 @@ def test_closed_loop_chunks_say_which_segment_and_why_it_began(robot_hub):
     ]
     assert drops[0].dropped == first.dropped and drops[0].moving == 0  # the tail stays put: no motion lost
     assert (
-        env.book.counts()["retreat_preemptions"] == 1
-        and env.book.counts()["retreat_dropped"] == first.dropped
+        env.link.book.counts()["retreat_preemptions"] == 1
+        and env.link.book.counts()["retreat_dropped"] == first.dropped
     )

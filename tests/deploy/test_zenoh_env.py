@@ -70,19 +70,19 @@ def test_a_lost_target_is_waited_for_not_guessed(endpoint):
             )
 
         report(True)
-        assert env._wait(env._target_fresh, 3.0)
-        env._await_target()  # fresh: returns at once
-        assert env.target_waits == 0
+        assert env.link.wait(env.link.target_fresh, 3.0)
+        env.link.await_target()  # fresh: returns at once
+        assert env.link.target_waits == 0
         report(False)
-        assert env._wait(lambda: env._target_lost, 3.0)
+        assert env.link.wait(lambda: env.link.target_lost, 3.0)
         done = threading.Event()
-        waiter = threading.Thread(target=lambda: (env._await_target(), done.set()), daemon=True)
+        waiter = threading.Thread(target=lambda: (env.link.await_target(), done.set()), daemon=True)
         waiter.start()
         assert not done.wait(1.5)  # lost: the learner waits
         report(True)
-        assert done.wait(5.0) and env.target_waits == 1
+        assert done.wait(5.0) and env.link.target_waits == 1
         time.sleep(0.6)  # no report for longer than target_timeout_s: stale, not guessed
-        assert not env._target_fresh()
+        assert not env.link.target_fresh()
     finally:
         vision.close()
         bus.close()
