@@ -209,6 +209,7 @@ class ActorNode(Node):
             "retreats": self.loop.ends[SegmentEnd.RETREAT],
             **self.loop.starts,
             "policy_version": self.actor.version,
+            "session": env.link.session.id,  # robot-io's chunk statuses name it
             **env.link.counts(),
             "plan_model_updates": self.actor.model.updates,  # ticks the plan model learned from
             "stream": self.outbox.stream,

@@ -179,6 +179,7 @@ class RobotIONode(Node):
                 chunk_seq=msg.seq,
                 executed=0,
                 dropped=len(actions),
+                preempted_by=-1,  # refused, not preempted (0 would name the session's first chunk)
                 done=True,
                 session=msg.session,
                 verdict=m.enum(m.ChunkStatus, "verdict", outcome),

@@ -31,6 +31,7 @@ from loopback import free_endpoint, unique_name
 from stack_helpers import running_part
 
 from bus import messages as m
+from bus.learner_session import REFUSALS
 from bus.signing import mac_key
 from bus.transport import Bus, open_session, wait_listening
 from deploy.config import compose_stack_yaml
@@ -52,6 +53,7 @@ class Bench(BusProbe):
         self.chunks = self.collect(m.CMD_CHUNK)
         self.segments = self.collect(m.EVENTS_RETREAT, arrival=False)
         self.acks = self.collect(m.TRANSITION_ACKS, arrival=False)
+        self.status = self.collect(m.CHUNK_STATUS, arrival=False)
         self._target = self.bus.publisher(m.TARGET)
         self.bus.subscribe(m.TARGET_TRUTH, self._relay)
 
@@ -290,3 +292,55 @@ def test_the_fixed_h_learners_actor_never_retreats_and_ends_a_segment_every_fixe
         length[segment] = length.get(segment, 0) + 1
     cut = {segment for segment, end, _ in ticks if end == "h_max"}
     assert cut and all(length[segment] == 7 for segment in cut), {s: length[s] for s in cut}
+
+
+def _pid_running(config: Path) -> int:
+    """The process started with ``config`` on its command line (a part ``running_part`` started)."""
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and str(config).encode() in (proc / "cmdline").read_bytes():
+                return int(proc.name)
+        except OSError:
+            continue
+    raise AssertionError(f"no process runs {config}")
+
+
+def test_the_ledger_of_plans_equals_what_robot_io_reported_across_retreats_and_a_robot_io_restart(tmp_path):
+    """The actor's one account of planned actions dropped (``PlanBook.counts`` in ``actor.json``) equals
+    the sum of robot-io's own chunk statuses for its session, over a run with retreats in which robot-io
+    was SIGKILLed and a new robot-io took over."""
+    with _acting(tmp_path) as (cfg, bench, token):
+        learner = _learner(cfg, tmp_path, token)  # its snapshots give the actor a field: retreats
+        try:
+            retreats = lambda: [t for t in bench.transitions if m.label(t, "end") == "retreat"]  # noqa: E731
+            bench.wait(lambda: len(retreats()) >= 3, 90, "three retreats")
+            with bench.lock:
+                before = {s.instance for _, s in bench.states}
+            os.kill(_pid_running(tmp_path / "robot-io.yaml"), signal.SIGKILL)
+            new = lambda: {s.instance for _, s in bench.states} - before  # noqa: E731
+            (tmp_path / "again").mkdir()
+            with running_part(
+                "robot-io",
+                cfg,
+                tmp_path / "again",
+                lambda: bench.wait(new, 60, "a new robot-io"),
+                token=token,
+                args=("--watch", "actor"),
+            ):
+                n = len(bench.transitions)
+                bench.wait(lambda: len(bench.transitions) > n + 100, 90, "acting on the new robot-io")
+                bench.wait(lambda: len(retreats()) >= 5, 90, "retreats on the new robot-io")
+        finally:
+            learner.kill()
+            learner.wait(10)
+    counts = json.loads((Path(cfg["learner"]["checkpoint_dir"]) / "actor.json").read_text())
+    assert counts["robot_restarts"] == 1, counts
+    with bench.lock:
+        ours = [s for s in bench.status if s.session == counts["session"]]
+    assert not [s for s in ours if m.label(s, "verdict") in REFUSALS and s.preempted_by != -1]
+    mine = [s for s in ours if s.preempted_by >= 0 and s.dropped]  # a plan cut by a newer one
+    by_retreat = [s for s in mine if m.label(s, "preempted_by_opening") == "retreat"]
+    assert counts["preemptions"] == len(mine) > 0, counts
+    assert counts["dropped_planned"] == sum(s.dropped for s in mine), counts
+    assert counts["retreat_preemptions"] == len(by_retreat) > 0, counts
+    assert counts["retreat_dropped"] == sum(s.dropped for s in by_retreat), counts
