@@ -33,12 +33,23 @@ where the samples fell (:meth:`KLSTDCritic.visits`) for the actor's local step s
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import blas
 
 from learner.dictionary import KernelDictionary
 from learner.kernels import GaussianKernel
 
 MODES = ("value", "compatible", "q")
 RESIDUAL_P0 = 10.0  # the prior scale (and cap) of the least-squares residual fit's P
+WEIGHT_FLOOR = 1e-200  # a center's squared weight above which its pruning loss cannot round to zero
+
+
+def subtract_outer(p: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+    """``p -= np.outer(x, y)`` in place, with the same numbers: one GEMM of inner dimension 1 (each product
+    rounded once, then subtracted; tests/learner/test_critic.py checks it against numpy's) instead of an
+    M×M temporary, which at M = 1000 costs four times the update itself. ``p``: C-contiguous float64."""
+    out = blas.dgemm(-1.0, y[:, None], x[None, :], 1.0, p.T, overwrite_c=True)
+    if not np.shares_memory(out, p):  # not reached for a C-contiguous p; kept correct whatever p is
+        p[...] = out.T
 
 
 class KLSTDCritic:
@@ -73,7 +84,7 @@ class KLSTDCritic:
         self.forgetting, self.p0, self.mode = forgetting, p0, mode
         self.block = 1 + action_dim if mode == "compatible" else 1
         self.theta = np.zeros(0)
-        self.P = np.zeros((0, 0))
+        self.P = np.zeros((0, 0))  # (the property below)
         # LSTD(λ) (Boyan 2002): the gain follows the eligibility trace z ← γλz + φ_t instead of φ_t. λ moves
         # the fixed point from TD(0)'s towards the least-squares fit of the Monte-Carlo returns (less bias
         # where the features cannot represent V, more variance). 0: RLS-TD(0).
@@ -93,6 +104,15 @@ class KLSTDCritic:
 
     def __len__(self) -> int:
         return len(self.dictionary)
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._P
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        self._P = value
+        self._diag = None  # diag(P), kept beside it by update(): a strided read of M cache lines otherwise
 
     def _phi(self, kvec: np.ndarray, score: np.ndarray | None) -> np.ndarray:
         if self.mode == "value":
@@ -179,13 +199,13 @@ class KLSTDCritic:
         """
         if self.mode == "q":
             z = np.concatenate([s, action])
-            self._maybe_add_center(z)
-            u = self.dictionary.features(z)
+            u = self._maybe_add_center(z)
+            u = self.dictionary.features(z) if u is None else u
             nxt = np.zeros_like(u) if terminal else self._expected_phi(s_next, next_mean, sigma)[0]
             advantage = float(u @ self.theta) - float(self._expected_phi(s, mean, sigma)[0] @ self.theta)
         else:
-            self._maybe_add_center(s)
-            kvec = self.dictionary.features(s)
+            kvec = self._maybe_add_center(s)
+            kvec = self.dictionary.features(s) if kvec is None else kvec
             self._count_visit(kvec)
             u = self._phi(kvec, score)
             nxt = np.zeros_like(u) if terminal else self._phi(self.dictionary.features(s_next), None)
@@ -209,10 +229,18 @@ class KLSTDCritic:
             return advantage
         gain = pu / denom
         self.theta = self.theta + gain * td_error
-        self.P = (self.P - np.outer(gain, v @ self.P)) / self.forgetting
-        peak = float(np.max(np.abs(np.diag(self.P))))
+        # P ← (P - gain (vᵀP)) / β in place: the same numbers as the expression, no M×M temporaries; its
+        # diagonal by the same operations on the diagonal's elements.
+        diag = np.diag(self.P).copy() if self._diag is None else self._diag
+        vp = v @ self.P
+        subtract_outer(self.P, gain, vp)
+        np.divide(self.P, self.forgetting, out=self.P)
+        diag = (diag - gain * vp) / self.forgetting
+        peak = float(np.max(np.abs(diag)))
         if peak > self.p0:
             self.P *= self.p0 / peak
+            diag *= self.p0 / peak
+        self._diag = diag
         return advantage
 
     def end_episode(self) -> None:
@@ -275,12 +303,22 @@ class KLSTDCritic:
         self.res_den += kvec
         return b
 
-    def _maybe_add_center(self, s: np.ndarray) -> None:
-        """``s``: the state, or for ``q`` the state-action pair."""
-        kvec, _, delta = self.dictionary.ald(s)
+    def _maybe_add_center(self, s: np.ndarray) -> np.ndarray | None:
+        """``s``: the state, or for ``q`` the state-action pair. Returns its features when the dictionary's
+        centers are as they were (None: they changed).
+
+        At the budget a new center is pruned at once: its weights are zero, so its pruning loss is, and
+        every other center's is positive (while their weights are not vanishingly small). What admitting
+        and pruning it would leave is then the dictionary as it was with its factor refactored from scratch
+        (:meth:`KernelDictionary.refresh`): done so, without the O(M³) pruning. Only the factor's last
+        digits can differ from before, and ``refresh`` reproduces them exactly."""
+        kvec, half, delta = self.dictionary.residual(s)
         if delta <= self.ald_threshold:
-            return
-        self.dictionary.append(s, kvec)
+            return kvec
+        if len(self) >= self.budget and self._newcomer_pruned(delta):
+            self.dictionary.refresh()
+            return kvec
+        self.dictionary.append(s, kvec, half)
         b, n = self.block, len(self.theta)
         self.theta = np.concatenate([self.theta, np.zeros(b)])
         self.trace = np.concatenate([self.trace, np.zeros(b)])  # past features of the new center: unknown
@@ -298,6 +336,13 @@ class KLSTDCritic:
         self.visit_counts = np.append(self.visit_counts, 0.0)
         if len(self) > self.budget:
             self._prune()
+        return None
+
+    def _newcomer_pruned(self, delta: float) -> bool:
+        """Whether :meth:`_prune` would drop a center admitted now (with residual ``delta``): every present
+        center's loss, its removal residual (at least ~jitter) times its squared weight, is positive."""
+        weight2 = (self.theta.reshape(-1, self.block) ** 2).sum(1)
+        return bool(np.isfinite(delta) and len(weight2) and np.min(weight2) > WEIGHT_FLOOR)
 
     def _prune(self) -> None:
         """Drop the center whose value weight loses the least RKHS norm; project it onto the rest."""
@@ -327,7 +372,7 @@ class KLSTDCritic:
         return {
             "dictionary": self.dictionary.state_dict(),
             "theta": self.theta,
-            "P": self.P,
+            "P": self.P.copy(),  # updated in place
             "trace": self.trace,
             "res_num": self.res_num,
             "res_den": self.res_den,
@@ -337,7 +382,8 @@ class KLSTDCritic:
 
     def load_state_dict(self, state: dict) -> None:
         self.dictionary.load_state_dict(state["dictionary"])
-        self.theta, self.P = state["theta"], state["P"]
+        self.theta = state["theta"]
+        self.P = np.array(state["P"], dtype=float, order="C")  # its own: updated in place
         self.trace = state.get("trace", np.zeros_like(self.theta))
         n = len(self.dictionary)
         self.res_num = state.get("res_num", np.zeros(n))

@@ -3,7 +3,7 @@
 Approximate linear dependence (ALD, Engel et al.) decides whether a state earns a center: its residual
 ``δ(s) = k(s,s) - k_sᵀ K⁻¹ k_s`` is the squared RKHS distance of ``k(s,·)`` from the span of the
 dictionary. The Cholesky factor grows by a block update on append (O(M²)); a failed update (numerical
-loss of definiteness) refactors with a larger jitter.
+loss of definiteness) refactors with a larger jitter. A removal refactors from scratch (O(M³)).
 """
 
 from __future__ import annotations
@@ -41,6 +41,9 @@ class KernelDictionary:
         self.centers = np.zeros((0, kernel.dim))
         self.gram = np.zeros((0, 0))
         self.chol = np.zeros((0, 0))
+        # ``chol`` is the factor ``_refactor`` computes from ``gram`` and ``jitter`` (not a block update's):
+        # refactoring again would give the same numbers (see ``refresh``).
+        self.fresh = True
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -54,6 +57,21 @@ class KernelDictionary:
             return np.zeros_like(b)
         return _cholesky_solve(self.chol, b)
 
+    def residual(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(k_s, L⁻¹k_s, δ(s)): the ALD test without the projection, one triangular solve; the middle term
+        is what :meth:`append` and :meth:`coefficients` take instead of solving again."""
+        kvec = self.features(s)
+        if len(self) == 0:
+            return kvec, kvec, 1.0
+        half = _triangular_solve(self.chol, kvec)
+        return kvec, half, max(1.0 - float(half @ half), 0.0)
+
+    def coefficients(self, half: np.ndarray) -> np.ndarray:
+        """``K⁻¹k_s`` from :meth:`residual`'s ``L⁻¹k_s``."""
+        if len(self) == 0:
+            return half.copy()
+        return _triangular_solve(self.chol, half, transposed=True)
+
     def ald(self, s: np.ndarray, kvec: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(k_s, K⁻¹k_s, δ(s)): features, projection coefficients and ALD residual of ``s``."""
         kvec = self.features(s) if kvec is None else kvec
@@ -63,7 +81,9 @@ class KernelDictionary:
         coeffs = _triangular_solve(self.chol, half, transposed=True)
         return kvec, coeffs, max(1.0 - float(half @ half), 0.0)
 
-    def append(self, s: np.ndarray, kvec: np.ndarray | None = None) -> None:
+    def append(self, s: np.ndarray, kvec: np.ndarray | None = None, half: np.ndarray | None = None) -> None:
+        """Add the center ``s``; ``kvec``, ``half``: its features and ``L⁻¹k_s`` (:meth:`residual`), if known
+        (the same numbers, not computed again)."""
         kvec = self.features(s) if kvec is None else kvec
         m = len(self)
         gram = np.empty((m + 1, m + 1))
@@ -72,10 +92,11 @@ class KernelDictionary:
         gram[m, m] = 1.0
         self.centers = np.vstack([self.centers, s[None, :]])
         self.gram = gram
+        self.fresh = False
         if m == 0:
             self.chol = np.array([[np.sqrt(1.0 + self.jitter)]])
             return
-        half = _triangular_solve(self.chol, kvec)
+        half = _triangular_solve(self.chol, kvec) if half is None else half
         d2 = 1.0 + self.jitter - float(half @ half)
         if d2 <= self.jitter * 0.5:
             self._refactor()
@@ -97,12 +118,18 @@ class KernelDictionary:
         inv_diag = np.diag(self.solve(np.eye(len(self))))
         return 1.0 / np.maximum(inv_diag, 1e-12)
 
+    def refresh(self) -> None:
+        """The factor as :meth:`remove` leaves it, from scratch; nothing to do when it already is."""
+        if not self.fresh:
+            self._refactor()
+
     def _refactor(self) -> None:
         """Cholesky from scratch, raising the jitter until it succeeds."""
         eye = np.eye(len(self))
         while True:
             try:
                 self.chol = np.linalg.cholesky(self.gram + self.jitter * eye)
+                self.fresh = True
                 return
             except np.linalg.LinAlgError:
                 self.jitter = max(self.jitter * 10.0, 1e-10)
@@ -113,6 +140,7 @@ class KernelDictionary:
     def load_state_dict(self, state: dict) -> None:
         self.centers, self.gram, self.chol = state["centers"], state["gram"], state["chol"]
         self.jitter = state["jitter"]
+        self.fresh = False  # not known: the next refresh refactors
 
 
 class RKHSFunction:
@@ -147,14 +175,14 @@ class RKHSFunction:
         self.weights *= factor
 
     def add(self, s: np.ndarray, g: np.ndarray) -> None:
-        kvec, coeffs, delta = self.dictionary.ald(s)
+        kvec, half, delta = self.dictionary.residual(s)
         if delta > self.ald_threshold:
-            self.dictionary.append(s, kvec)
+            self.dictionary.append(s, kvec, half)
             self.weights = np.vstack([self.weights, g[None, :]])
             if len(self) > self.budget:
                 self._prune()
         else:
-            self.weights += np.outer(coeffs, g)
+            self.weights += np.outer(self.dictionary.coefficients(half), g)
             self.error_bound += float(np.sqrt(delta * (g @ g)))
 
     def _prune(self) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learner.critic import KLSTDCritic
+from learner.critic import KLSTDCritic, subtract_outer
 from learner.kernels import GaussianKernel
 
 SPACING = 10.0  # states far apart relative to the bandwidth (1.0): the kernel features are one-hot
@@ -109,3 +109,74 @@ def test_critic_dictionary_stays_under_budget_with_bounded_arrays(mode):
 def test_critic_rejects_an_unknown_mode():
     with pytest.raises(ValueError, match="mode"):
         KLSTDCritic(GaussianKernel(0.3, 1), 0.9, 10, 0.1, mode="bogus")
+
+
+@pytest.mark.parametrize("m", [1, 3, 7, 64, 100, 101, 257, 1000])
+def test_the_in_place_rank_one_update_has_numpys_numbers(m):
+    """``subtract_outer`` (one GEMM of inner dimension 1) rounds each product before subtracting it, as
+    ``p - np.outer(x, y)`` does: the critic's update is the same to the last bit. A BLAS that fused the
+    two (as its GER does, with an FMA) would fail here."""
+    rng = np.random.default_rng(m)
+    p, x, y = rng.normal(size=(m, m)), rng.normal(size=m) * 1e-3, rng.normal(size=m)
+    expected = p - np.outer(x, y)
+    subtract_outer(p, x, y)
+    assert np.array_equal(p, expected)
+
+
+@pytest.mark.parametrize(
+    "mode, residual", [("value", None), ("value", "least_squares"), ("compatible", None), ("q", None)]
+)
+def test_at_its_budget_the_critic_drops_a_new_center_with_the_numbers_of_pruning_it(mode, residual):
+    """Over budget a new center has zero weight, so pruning drops it: the critic skips admitting and pruning
+    it and leaves what that would (the dictionary as it was, its factor refactored from scratch), to the
+    last bit, with far fewer factorisations."""
+
+    def critic() -> KLSTDCritic:
+        kwargs = {"residual_memory": 0.99, "residual_fit": residual} if residual else {}
+        return KLSTDCritic(GaussianKernel(0.3, 2), 0.9, 12, 0.02, 0.99, mode=mode, action_dim=1, **kwargs)
+
+    fast, slow = critic(), critic()
+    slow._newcomer_pruned = lambda delta: False  # always admit, then prune: the algorithm as stated
+    refactors = {"fast": 0, "slow": 0}
+    for name, c in (("fast", fast), ("slow", slow)):
+        refactor = c.dictionary._refactor
+
+        def counted(_refactor=refactor, _name=name) -> None:
+            refactors[_name] += 1
+            _refactor()
+
+        c.dictionary._refactor = counted
+    rng = np.random.default_rng(4)
+    for t in range(600):
+        s, s2, r = rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 2), float(rng.normal())
+        extra = {}
+        if mode == "compatible":
+            extra = {"score": rng.normal(size=1)}
+        elif mode == "q":
+            a, mean, nxt = rng.uniform(-1, 1, (3, 1))
+            extra = {"action": a, "mean": mean, "next_mean": nxt, "sigma": np.array([0.3])}
+        advantages = [c.update(s, r, s2, t % 40 == 39, **extra) for c in (fast, slow)]
+        assert advantages[0] == advantages[1]
+    assert len(fast) == 12
+    for name in ("theta", "P", "trace", "res_num", "res_den", "res_P", "visit_counts"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
+    for name in ("centers", "gram", "chol"):
+        assert np.array_equal(getattr(fast.dictionary, name), getattr(slow.dictionary, name)), name
+    assert fast.dictionary.jitter == slow.dictionary.jitter
+    assert np.array_equal(fast._diag, np.diag(fast.P))  # the diagonal kept beside P is P's
+    assert refactors["fast"] < refactors["slow"] / 5
+
+
+def test_a_critic_loaded_from_a_state_owns_its_matrix():
+    """``P`` is updated in place: a state dict handed out, or loaded from, is never changed by learning."""
+    rng = np.random.default_rng(5)
+    a = KLSTDCritic(GaussianKernel(0.3, 2), 0.9, 20, 0.02, 0.99)
+    for _ in range(30):
+        a.update(rng.uniform(-1, 1, 2), 1.0, rng.uniform(-1, 1, 2), False)
+    state = a.state_dict()
+    saved = state["P"].copy()
+    b = KLSTDCritic(GaussianKernel(0.3, 2), 0.9, 20, 0.02, 0.99)
+    b.load_state_dict(state)
+    for c in (a, b):
+        c.update(rng.uniform(-1, 1, 2), 1.0, rng.uniform(-1, 1, 2), False)
+    assert np.array_equal(state["P"], saved)

@@ -229,3 +229,29 @@ def test_dictionary_solves_give_scipys_numbers_and_name_a_singular_factor():
     singular[7, 7] = 0.0
     with pytest.raises(np.linalg.LinAlgError, match="zero pivot at 7"):
         _triangular_solve(singular, b)
+
+
+def test_the_one_solve_ald_test_and_its_reuse_give_the_two_solve_numbers():
+    """``residual`` (one triangular solve), ``coefficients`` from its half, and ``append`` taking that half
+    give exactly what ``ald`` and ``append`` compute on their own; ``refresh`` reproduces a refactor."""
+    rng = np.random.default_rng(6)
+    kernel = GaussianKernel(np.array([0.4, 0.6, 0.5]), 3)
+    a, b = KernelDictionary(kernel), KernelDictionary(kernel)
+    for _ in range(60):
+        s = rng.uniform(-1, 1, 3)
+        kvec, coeffs, delta = a.ald(s)
+        k2, half, d2 = b.residual(s)
+        assert np.array_equal(kvec, k2) and delta == d2
+        assert np.array_equal(coeffs, b.coefficients(half))
+        if delta > 0.05:
+            a.append(s, kvec)
+            b.append(s, k2, half)
+            assert not b.fresh
+    assert np.array_equal(a.chol, b.chol) and len(a) > 10
+    b.refresh()
+    assert b.fresh and np.array_equal(b.chol, np.linalg.cholesky(b.gram + b.jitter * np.eye(len(b))))
+    before = b.chol
+    b.refresh()  # already from scratch: left as it is
+    assert b.chol is before
+    a.remove(len(a) - 1)
+    assert a.fresh
