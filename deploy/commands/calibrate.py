@@ -68,15 +68,22 @@ def _sim_session(settings, args) -> tuple[list, list, object, np.ndarray | None]
         return simulated_session(settings.vision, scene, args.views, args.seed, args.scale)
 
 
+def arm_kinematics(settings):  # noqa: ANN001, ANN201 (imports kept lazy: the command starts fast)
+    """The kinematics of the arm the config names (``robot.model``): the hand pose of each view."""
+    from robot_io.description import RobotDescription
+    from robot_io.kinematics import Kinematics
+
+    return Kinematics(RobotDescription(settings.robot.model))
+
+
 def _live_session(settings, args) -> tuple[list, list, object, None]:
     from bus import messages as m
     from bus.transport import Bus, open_session
-    from robot_io.kinematics import Kinematics
     from vision.calibration import CharucoBoard
     from vision.cameras.realsense import RealSenseCamera
 
     board = CharucoBoard(settings.vision.calibration)
-    kin = Kinematics()
+    kin = arm_kinematics(settings)
     latest: list[m.RobotState] = []
     got = threading.Event()
 

@@ -104,3 +104,19 @@ def test_calibrate_command_in_simulation_writes_extrinsics_within_5mm_1deg(tmp_p
     text = path.read_text()
     assert text.startswith("# a comment that must survive") and "backend: pybullet" in text
     assert written.tracking.lost_after_s == 0.4 and written.sim.pose == TRUE_POSE
+
+
+def test_the_live_session_poses_the_hand_with_the_configured_arms_kinematics():
+    """An FR3 is calibrated with the FR3's kinematics, not the Panda's (the hand pose of every view)."""
+    from deploy.commands.calibrate import arm_kinematics
+    from robot_io.description import RobotDescription
+    from robot_io.kinematics import Kinematics
+
+    settings = load_stack_config("configs/franka_realsense.yaml")
+    q = np.array([0.1, -0.6, 0.2, -2.2, 0.1, 1.7, 0.9])
+    for model in ("panda", "fr3"):
+        arm = settings.robot.model_copy(update={"model": model})
+        hand = arm_kinematics(settings.model_copy(update={"robot": arm})).fk(q).homogeneous
+        assert np.allclose(hand, Kinematics(RobotDescription(model)).fk(q).homogeneous)
+    panda, fr3 = (Kinematics(RobotDescription(name)).fk(q).homogeneous for name in ("panda", "fr3"))
+    assert not np.allclose(panda, fr3, atol=1e-4)  # the two arms differ: the wrong one would show
