@@ -10,7 +10,7 @@ from experiments.metrics import RETURN_WINDOW
 from experiments.plan import ALGO_LABELS, ENVS, MAIN_ENVS, SPEED_ENVS, Plan
 
 DPI = 110
-MAX_WIDTH_IN = 14.5  # 1595 px at DPI: a figure fits a laptop screen (issue #48)
+MAX_WIDTH_IN = 14.5  # 1595 px at DPI: a figure fits a laptop screen
 
 ALGO_COLORS = {
     "adaptiveh": "tab:red",

@@ -35,7 +35,7 @@ forces changed.
   (n_epochs / batch) are the zoo's; a rollout cut by the step budget is not trained on (PPO trains
   on whole rollouts only), and the zoo's 1e5-step budget is the bench's 20k like every method's.
 
-Plan execution (issue #11, ``learner.baselines_plan``): ``plan_h`` (TD3, DDPG, SAC; default 1, the
+Plan execution (``learner.baselines_plan``): ``plan_h`` (TD3, DDPG, SAC; default 1, the
 closed loop above, bit for bit) > 1 plays committed plans of ``plan_h`` actions sampled over the env's
 nominal model, re-planned every ``plan_h`` steps and at each episode start, as the fixed-H RKHS learner
 does in ``execution: plan``; segments go to the ``RunLog``, the plan counters are ``agent.channel``.

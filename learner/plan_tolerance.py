@@ -1,5 +1,5 @@
 """How far a plan's prediction may miss before the plan counts as stale: a fixed kernel, that kernel
-widened by the measured noise, or a tolerance learned from how far predictions normally miss (issue #33).
+widened by the measured noise, or a tolerance learned from how far predictions normally miss.
 
 The plan retreat's kernel term ``k(ŝ_i, s_i)`` compares the state a plan predicted ``i`` steps ahead with
 the state reached (both normalised). :class:`FixedTolerance` is the policy's kernel with its widths scaled

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 NAMESPACE = m.NAMESPACE
 REJECTED = "_rejected/"
 # MCAP packs times as uint64 ns, sequences as uint32 and channel ids as uint16; a value out of range fails
-# half-way through a record and corrupts its chunk (issue #31), so every value written is kept in range.
+# half-way through a record and corrupts its chunk, so every value written is kept in range.
 MAX_STAMP_S = 2.0**32  # a stamp below this is < 4.3e18 ns, inside uint64 (and Foxglove's uint32 seconds)
 U32 = 2**32
 MAX_OTHER_KEYS = 256  # keys outside the schema with their own channel; a stranger's further ones share one
@@ -158,7 +158,7 @@ class Recorder:
         data = sample.payload.to_bytes()
         with self._lock:
             # Read under the lock: a record's log time and its channel sequence then rise together even
-            # when two Zenoh threads deliver the same key at once (under load they did not: issue #35).
+            # when two Zenoh threads deliver the same key at once (under load they did not).
             now = time.time_ns()
             if self._closed:
                 return
@@ -243,7 +243,7 @@ def publish_time(msg: m.Message, now: int) -> int:
     """When ``msg`` was sent, in ns: its stamp when that is a time MCAP holds, else ``now`` (arrival).
 
     A message got back late keeps when it was sent. A stamp of 1e12 s (a stranger's bit flip) decoded
-    fine but made the writer fail half-way through the record (issue #31): never passed to it.
+    fine but made the writer fail half-way through the record: never passed to it.
     """
     stamp = getattr(msg, "stamp", 0.0)
     return int(stamp * 1e9) if 0.0 < stamp < MAX_STAMP_S else now
