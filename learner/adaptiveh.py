@@ -7,7 +7,8 @@ advantage — a TD error for the default value critic, i.e. Q̂ with the state b
 which keeps the gradient unbiased), and EVAL the retreat statistic. A retreat, ``h_max`` or the episode's
 end closes the segment: UPDATE ``h`` with the segment's gradients, SPARSIFY, and open a new segment.
 
-With ``execution: plan`` a segment is a committed plan (``learner.plans``): at its first state the
+With ``execution: plan`` a segment is a committed plan (``learner.plans``) played by the segment loop
+(``learner.acting``, the actor's loop, with this learner as its own actor): at its first state the
 segment's policy samples up to ``h_max`` (fixed-H: ``fixed_h``) actions over the states the env's
 nominal model predicts, and they play without waiting for the learner; the segment's end re-plans and
 the new plan preempts what is left. Every executed step is learned from as it happens. The score of
@@ -305,10 +306,10 @@ class AdaptiveH:
             episode_over,
             predicted,
             reached,
-            True,
-            statistic,
-            noise,
-        )  # the actor judged the tick where it played (the same rules, ``learner.acting``)
+            judged=True,  # where the plan played, by the same loop (``learner.acting``)
+            statistic=statistic,
+            noise=noise,
+        )
         decided = self._forced_end(episode_over) if retreat is None else SegmentEnd(end)
         record = None if decided == SegmentEnd.OPEN else self._close_segment(decided)
         if episode_over:
