@@ -32,7 +32,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -82,7 +82,7 @@ class EnvSettings:
     target_hi: tuple[float, ...]
     target_speed_max: float
     step_timeout_s: float
-    execution: Literal["closed_loop", "plan"]  # who steps the env: a learner's step(), or an actor's plans
+    reads_every_tick: bool  # an actor reads every tick (``advance``); a learner's ``step`` the newest
     latency_ms: float  # closed loop: the learner's thinking time made real, a chunk goes out this late
     reset_timeout_s: float = 30.0
     target_timeout_s: float = 0.5
@@ -106,7 +106,7 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
         target_timeout_s=lc.target_timeout_s,
-        execution="closed_loop" if lc.execution == "closed_loop" else "plan",  # actor: the actor's env plans
+        reads_every_tick=lc.execution == "actor",
         latency_ms=lc.latency_ms if lc.execution == "closed_loop" else 0.0,  # actor: snapshots arrive late
         robot_model=cfg.robot.model,
         tracking=TRACKING if cfg.robot.tracking is None else ArmTracking(**cfg.robot.tracking.model_dump()),
@@ -174,7 +174,7 @@ class ZenohReachEnv(ReachSpec):
         self.planner = planner
         # The robot's ticks not yet read: every one for an actor (``advance``, with the target then
         # known); closed loop, those since the last chunk went out, bounded while no step waits.
-        keep = None if settings.execution == "plan" else 1024
+        keep = None if settings.reads_every_tick else 1024
         target_topic = m.TOPICS[settings.target_topic]
         self.link = RobotLink(bus, target_topic, settings.target_timeout_s, settings.max_step_m, keep)
         self.segment = 0  # closed loop: the segment the next chunk belongs to (``open_segment``)
