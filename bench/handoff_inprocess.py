@@ -1,0 +1,81 @@
+"""The handoff in-process: the stack's learner (its agent, plan execution) on NS Reach, started from the
+in-process policy bench/handoff.py hands to the stack, on the world it was trained on (servo gain 0.3)
+and on a slower arm (0.1, the slow_arm gap's), learning on or frozen; and from scratch. Minutes where
+the stack bench takes hours, so a change to how the learner learns after a handoff is seen here first.
+
+Per run: success by quarter of 6000 steps. Each run is appended under ``--label`` to
+``results/handoff_inprocess.json`` (a label run again replaces its runs); ``PYTHONPATH=<another checkout>``
+measures that checkout's learner with this script.
+
+    python bench/handoff_inprocess.py --label after [--seeds 0 1 2] [--variants learn frozen scratch]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import tasks  # noqa: F401  (registers NSReach-v0)
+from deploy.config import load_stack_config
+from learner.registry import make_agent
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+from handoff import source_policy  # noqa: E402
+
+OUT = ROOT / "results" / "handoff_inprocess.json"
+STEPS = 6000
+GAINS = {"trained_world": 0.3, "slow_arm": 0.1}  # robot.mock.position_gain: configs/gaps/slow_arm.yaml's
+
+
+def run(seed: int, variant: str, gain: float) -> dict[str, Any]:
+    agent_cfg = load_stack_config(ROOT / "configs" / "sim.yaml").learner.agent_config()
+    if variant == "frozen":
+        agent_cfg["frozen"] = True
+    env = gym.make("NSReach-v0", motion="slow", max_episode_steps=50, seed=seed)
+    env.unwrapped.scene.position_gain = gain
+    agent = make_agent("adaptiveh", env, seed, agent_cfg)
+    if variant != "scratch":
+        agent.start_from(source_policy(seed))
+    agent.learn(STEPS)
+    quarters = [
+        [e.success for e in agent.log.episodes if k * STEPS / 4 < e.global_step <= (k + 1) * STEPS / 4]
+        for k in range(4)
+    ]
+    return {"success_by_quarter": [round(float(np.mean(q)), 3) for q in quarters]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--label", required=True, help="what this code is (before, after, ...)")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
+    args = ap.parse_args()
+    import learner
+
+    tree = Path(learner.__file__).resolve().parents[1]
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=tree, capture_output=True, text=True).stdout
+    data = json.loads(OUT.read_text()) if OUT.exists() else {"steps": STEPS, "runs": []}
+    data["runs"] = [r for r in data["runs"] if r["label"] != args.label]
+    for variant in args.variants:
+        for world, gain in GAINS.items():
+            if variant == "scratch" and world != "trained_world":
+                continue
+            for seed in args.seeds:
+                row = {"label": args.label, "commit": commit.strip(), "variant": variant, "world": world}
+                row |= {"seed": seed, **run(seed, variant, gain)}
+                print(json.dumps(row), flush=True)
+                data["runs"].append(row)
+    OUT.write_text(json.dumps(data, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
