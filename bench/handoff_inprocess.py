@@ -2,12 +2,13 @@
 in-process policy bench/handoff.py hands to the stack, on the world it was trained on (servo gain 0.3)
 and on a slower arm (0.1, the slow_arm gap's), learning on or frozen; and from scratch. Minutes where
 the stack bench takes hours, so a change to how the learner learns after a handoff is seen here first.
+``--score noise`` (the default) scores each sample as the stack's actor does; ``executed`` as the plans
+experiment's in-process runs did (``learner.agent.plan_score``).
 
-Per run: success by quarter of 6000 steps. Each run is appended under ``--label`` to
-``results/handoff_inprocess.json`` (a label run again replaces its runs); ``PYTHONPATH=<another checkout>``
-measures that checkout's learner with this script.
+Per run: success by quarter of 6000 steps. Each run is appended under its label to
+``results/handoff_inprocess.json`` (a label run again replaces its runs).
 
-    python bench/handoff_inprocess.py --label after [--seeds 0 1 2] [--variants learn frozen scratch]
+    python bench/handoff_inprocess.py [--score noise|executed] [--seeds 0 1 2] [--variants learn ...]
 """
 
 from __future__ import annotations
@@ -35,8 +36,9 @@ STEPS = 6000
 GAINS = {"trained_world": 0.3, "slow_arm": 0.1}  # robot.mock.position_gain: configs/gaps/slow_arm.yaml's
 
 
-def run(seed: int, variant: str, gain: float) -> dict[str, Any]:
+def run(seed: int, variant: str, gain: float, score: str) -> dict[str, Any]:
     agent_cfg = load_stack_config(ROOT / "configs" / "sim.yaml").learner.agent_config()
+    agent_cfg["plan_score"] = score
     if variant == "frozen":
         agent_cfg["frozen"] = True
     env = gym.make("NSReach-v0", motion="slow", max_episode_steps=50, seed=seed)
@@ -54,10 +56,12 @@ def run(seed: int, variant: str, gain: float) -> dict[str, Any]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--label", required=True, help="what this code is (before, after, ...)")
+    ap.add_argument("--score", default="noise", choices=["noise", "executed"], help="agent.plan_score")
+    ap.add_argument("--label", default=None, help="the runs' label (default: the score)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
     args = ap.parse_args()
+    args.label = args.label or f"{args.score} score"
     import learner
 
     tree = Path(learner.__file__).resolve().parents[1]
@@ -70,7 +74,7 @@ def main() -> int:
                 continue
             for seed in args.seeds:
                 row = {"label": args.label, "commit": commit.strip(), "variant": variant, "world": world}
-                row |= {"seed": seed, **run(seed, variant, gain)}
+                row |= {"seed": seed, "score": args.score, **run(seed, variant, gain, args.score)}
                 print(json.dumps(row), flush=True)
                 data["runs"].append(row)
     OUT.write_text(json.dumps(data, indent=1))

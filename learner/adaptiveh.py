@@ -12,12 +12,11 @@ With ``execution: plan`` a segment is a committed plan (``learner.plans``) playe
 segment's policy samples up to ``h_max`` (fixed-H: ``fixed_h``) actions over the states the env's
 nominal model predicts, and they play without waiting for the learner; the segment's end re-plans and
 the new plan preempts what is left. Every executed step is learned from as it happens, at the state
-it acted in (the critic's TD error measures the action's consequence at ``s_i``). Its score is
-``Σ⁻¹·noise``, the deviation the policy drew at the predicted state ``ŝ_i`` (``a_i - h(ŝ_i)``), as the
-actor's samples are scored: ``a_i - h(s_i)`` carried the plan model's error ``h(ŝ_i) - h(s_i)`` into
-every update and, from a handed-off policy, drove it to 0 % success in 6000 steps of in-process NS
-Reach where this score keeps it at 93-100 % (docs/departures.md). When the model is right
-(``ŝ_i = s_i``) both are the on-policy score of the closed loop.
+it acted in (the critic's TD error measures the action's consequence at ``s_i``). Its score
+(``plan_score``) is taken there, ``Σ⁻¹(a_i - h(s_i))`` with the unclipped sample, or is the noise the
+policy drew at the predicted state, ``Σ⁻¹(a_i - h(ŝ_i))``, as the actor beside the arm scores every
+sample; neither wins everywhere (docs/learner_plans.md). When the model is right (``ŝ_i = s_i``) both
+are the on-policy score of the closed loop; fixed H = 1 in plan mode is the closed-loop learner.
 """
 
 from __future__ import annotations
@@ -204,11 +203,14 @@ class AdaptiveH:
 
     def _learn_tick(self, obs: np.ndarray, step: Executed, played: Played) -> tuple[float | None, bool]:
         """The loop's judge in-process (``learner.acting.Judge``): learn from the tick, then the retreat
-        test with the field that includes it; a sample that is not finite closes the segment. The sample
-        is scored by the noise that drew it, as the actor's are (a hold: zero noise, no gradient)."""
+        test with the field that includes it; a sample that is not finite closes the segment. With
+        ``plan_score: noise`` the sample is scored by the noise that drew it, as the actor's are (a hold:
+        zero noise, no gradient)."""
         s = self.normalize(obs)
         raw = played.raw(step)
-        noise = played.source.noise[step.index] if played.source is not None else np.zeros_like(raw)
+        noise = None
+        if self.config.plan_score == "noise":
+            noise = played.source.noise[step.index] if played.source is not None else np.zeros_like(raw)
         predicted = reached = None
         if played.current and np.all(np.isfinite(step.obs)):
             predicted, reached = self.normalize(played.predicted(step)), self.normalize(step.obs)

@@ -179,6 +179,12 @@ class AdaptiveHConfig(Section):
     # (learner/plans.py) of up to h_max (AdaptiveH) or fixed_h (RKHS) actions over model-predicted states.
     execution: Literal["closed_loop", "plan"] = "closed_loop"
     latency_steps: int = Field(0, ge=0)  # plan mode in-process: a new plan takes effect this many steps late
+    plan_score: Literal["executed", "noise"] = Field(
+        "executed",
+        description="plan mode in-process: how a planned sample is scored, at the state it acted in"
+        " (Σ⁻¹(a - h(s)), the plans experiment's runs) or by the noise that drew it at the predicted state"
+        " (Σ⁻¹(a - h(ŝ)), as the actor beside the arm scores every sample, whatever this says)",
+    )
 
     @property
     def retreat_mode(self) -> str:
