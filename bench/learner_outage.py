@@ -117,6 +117,7 @@ def trial(seed: int, outage_s: float, before: int) -> dict[str, Any]:
         tmp = Path(d)
         cfg, path = _config(tmp, seed)
         procs = [_part("robot-io", path, tmp / "robot-io.log", "--watch", "actor")]
+        watch = None
         try:
             wait_listening(cfg["zenoh"]["hub"])
             watch = Watch(cfg)
@@ -144,6 +145,8 @@ def trial(seed: int, outage_s: float, before: int) -> dict[str, Any]:
                 state = pickle.load(fh)
             result = json.loads((ckpt.parent / "result.json").read_text())
         finally:
+            if watch is not None:
+                watch.bus.close()  # its Zenoh session would keep the process from exiting
             for p in procs:
                 p.send_signal(signal.SIGTERM)
             for p in procs:
