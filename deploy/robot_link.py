@@ -48,6 +48,11 @@ def seen_at(target: m.Target | None) -> float:
     return target.frame_stamp if target.frame_stamp > 0 else target.stamp
 
 
+def usable(target: m.Target | None, when: float, limit_s: float) -> bool:
+    """A fix not older than ``limit_s`` at time ``when`` (a state's stamp, or now)."""
+    return target is not None and when - seen_at(target) <= limit_s
+
+
 def fixed_since(target: m.Target | None, stamp: float) -> bool:
     """A target fixed by a fresh detection (not a prediction) observed at or after ``stamp``."""
     return target is not None and target.status == m.Target.TRACKING and seen_at(target) >= stamp
@@ -169,7 +174,7 @@ class RobotLink:
 
     def target_fresh(self) -> bool:
         """The newest target report is a valid fix observed within ``target_timeout_s``."""
-        return not self.target_lost and time.time() - seen_at(self.target) <= self.target_timeout_s
+        return not self.target_lost and usable(self.target, time.time(), self.target_timeout_s)
 
     def await_target(self) -> None:
         """Block until the target is fresh again: a lost or stale target is never acted on (vision down,

@@ -41,7 +41,7 @@ from bus import messages as m
 from bus.transport import Bus
 from deploy.config import StackConfig
 from deploy.plan_channel import played
-from deploy.robot_link import SUSPENDED, LinkStopped, RobotLink, seen_at
+from deploy.robot_link import SUSPENDED, LinkStopped, RobotLink, seen_at, usable
 from learner.plans import Executed, Plan
 from learner.segments import Opening, opening
 from robot_io.step_cap import cap_step_length
@@ -122,11 +122,6 @@ def target_at(target: m.Target, when: float, horizon_s: float) -> tuple[np.ndarr
     age = max(0.0, when - seen_at(target))
     position = np.asarray(target.position, float) + np.asarray(target.velocity, float) * min(age, horizon_s)
     return position, age
-
-
-def _usable(target: m.Target | None, when: float, limit_s: float) -> bool:
-    """A fix not older than ``limit_s`` at time ``when`` (a state's stamp)."""
-    return target is not None and when - seen_at(target) <= limit_s
 
 
 class ReachSpec(gym.Env):
@@ -347,7 +342,7 @@ class ZenohReachEnv(ReachSpec):
             if not link.wait(link.target_fresh, 0.0):
                 self._hold_for_target()
             state, target = link.next_tick(self.settings.step_timeout_s)
-            if _usable(target, state.stamp, self.settings.target_timeout_s):
+            if usable(target, state.stamp, self.settings.target_timeout_s):
                 break
             link.outage_ticks += 1  # paired with a fix that went stale between the check and the tick
         restarted = link.consume_restart()  # this tick is the new robot-io's: the episode ends with it

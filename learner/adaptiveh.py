@@ -178,7 +178,7 @@ class AdaptiveH:
         end = self._forced_end(episode_over)
         if retreat is not None:
             end = segment_end(retreat, len(self.retreat.states), self.segment_limit, episode_over)
-        record = None if end == SegmentEnd.OPEN else self._close_segment(end)
+        record = self._close_segment(end)
         if episode_over:
             self._finish_episode(info)
         elif np.all(np.isfinite(next_obs)):
@@ -194,7 +194,7 @@ class AdaptiveH:
         elif self.acting.obs is None:  # resumed from a checkpoint: act on from its state
             self.acting.begin(self._obs)
         tick = self.acting.tick()
-        record = None if tick.end == SegmentEnd.OPEN else self._close_segment(tick.end)
+        record = self._close_segment(tick.end)
         if tick.episode_over:
             self._finish_episode(tick.step.info)
         else:
@@ -316,8 +316,7 @@ class AdaptiveH:
             statistic=statistic,
             noise=noise,
         )
-        decided = self._forced_end(episode_over) if retreat is None else SegmentEnd(end)
-        record = None if decided == SegmentEnd.OPEN else self._close_segment(decided)
+        record = self._close_segment(self._forced_end(episode_over) if retreat is None else SegmentEnd(end))
         if episode_over:
             self._finish_episode(info)
             self._ep_return, self._ep_len = 0.0, 0  # the actor has reset the robot
@@ -449,8 +448,9 @@ class AdaptiveH:
             self.policy.explore((cfg.sigma + (cfg.sigma_final - cfg.sigma) * frac) * self.policy.half_range)
 
     def _close_segment(self, reason: str) -> SegmentRecord | None:
+        """Update the policy with the segment's gradients when ``reason`` closes it (``open``: nothing)."""
         states, grads = self.retreat.states, self.retreat.grads
-        if not states:
+        if reason == SegmentEnd.OPEN or not states:
             return None
         cfg = self.config
         if cfg.frozen:

@@ -57,10 +57,10 @@ class KernelDictionary:
             return np.zeros_like(b)
         return _cholesky_solve(self.chol, b)
 
-    def residual(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    def residual(self, s: np.ndarray, kvec: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(k_s, L⁻¹k_s, δ(s)): the ALD test without the projection, one triangular solve; the middle term
         is what :meth:`append` and :meth:`coefficients` take instead of solving again."""
-        kvec = self.features(s)
+        kvec = self.features(s) if kvec is None else kvec
         if len(self) == 0:
             return kvec, kvec, 1.0
         half = _triangular_solve(self.chol, kvec)
@@ -74,12 +74,8 @@ class KernelDictionary:
 
     def ald(self, s: np.ndarray, kvec: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(k_s, K⁻¹k_s, δ(s)): features, projection coefficients and ALD residual of ``s``."""
-        kvec = self.features(s) if kvec is None else kvec
-        if len(self) == 0:
-            return kvec, kvec.copy(), 1.0
-        half = _triangular_solve(self.chol, kvec)
-        coeffs = _triangular_solve(self.chol, half, transposed=True)
-        return kvec, coeffs, max(1.0 - float(half @ half), 0.0)
+        kvec, half, delta = self.residual(s, kvec)
+        return kvec, self.coefficients(half), delta
 
     def append(self, s: np.ndarray, kvec: np.ndarray | None = None, half: np.ndarray | None = None) -> None:
         """Add the center ``s``; ``kvec``, ``half``: its features and ``L⁻¹k_s`` (:meth:`residual`), if known

@@ -28,7 +28,7 @@ import pytest
 import yaml
 from bus_probe import BusProbe
 from loopback import free_endpoint, unique_name
-from stack_helpers import running_part
+from stack_helpers import parts_of, running_part
 
 from bus import messages as m
 from bus.learner_session import REFUSALS
@@ -294,17 +294,6 @@ def test_the_fixed_h_learners_actor_never_retreats_and_ends_a_segment_every_fixe
     assert cut and all(length[segment] == 7 for segment in cut), {s: length[s] for s in cut}
 
 
-def _pid_running(config: Path) -> int:
-    """The process started with ``config`` on its command line (a part ``running_part`` started)."""
-    for proc in Path("/proc").iterdir():
-        try:
-            if proc.name.isdigit() and str(config).encode() in (proc / "cmdline").read_bytes():
-                return int(proc.name)
-        except OSError:
-            continue
-    raise AssertionError(f"no process runs {config}")
-
-
 def test_the_ledger_of_plans_equals_what_robot_io_reported_across_retreats_and_a_robot_io_restart(tmp_path):
     """The actor's one account of planned actions dropped (``PlanBook.counts`` in ``actor.json``) equals
     the sum of robot-io's own chunk statuses for its session, over a run with retreats in which robot-io
@@ -316,7 +305,7 @@ def test_the_ledger_of_plans_equals_what_robot_io_reported_across_retreats_and_a
             bench.wait(lambda: len(retreats()) >= 3, 90, "three retreats")
             with bench.lock:
                 before = {s.instance for _, s in bench.states}
-            os.kill(_pid_running(tmp_path / "robot-io.yaml"), signal.SIGKILL)
+            os.kill(parts_of(tmp_path / "robot-io.yaml")["robot-io"], signal.SIGKILL)
             new = lambda: {s.instance for _, s in bench.states} - before  # noqa: E731
             (tmp_path / "again").mkdir()
             with running_part(
