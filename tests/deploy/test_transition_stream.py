@@ -12,6 +12,7 @@ from loopback import unique_name
 from polling import wait_until
 
 from bus import messages as m
+from bus.signing import mac_key
 from bus.transport import Bus, ZenohConfig, open_session
 from deploy.transition_stream import RESEND_AFTER_S, Inbox, Outbox
 
@@ -59,10 +60,11 @@ def _learn(inbox: Inbox, outbox: Outbox, until: int, timeout: float = 15.0) -> l
     return steps
 
 
-def _wait_matched(bus: Bus) -> None:
-    pub = bus.session.declare_publisher(bus.key(m.TRANSITIONS))
+def _wait_matched(bus: Bus, topic: m.Topic = m.TRANSITIONS) -> None:
+    """Until what ``bus`` puts on ``topic`` reaches a subscriber (a put before that is lost)."""
+    pub = bus.session.declare_publisher(bus.key(topic))
     try:
-        wait_until(lambda: pub.matching_status.matching, 10, "the learner's subscription")
+        wait_until(lambda: pub.matching_status.matching, 10, f"a subscription to {topic.name}")
     finally:
         pub.undeclare()
 
@@ -122,3 +124,51 @@ def test_a_transition_lost_on_the_way_is_sent_again_once_the_learner_waits_for_i
     assert _learn(inbox, outbox, 10) == list(range(10))  # 6..9 refused until 5 came again
     assert time.monotonic() - started >= RESEND_AFTER_S and inbox.out_of_order >= 1
     assert outbox.resent >= 5 and lost_once == [5]
+
+
+def test_a_forged_ack_does_not_make_the_actor_forget_what_the_learner_has_not_saved(endpoint):
+    """With the stack's key an ack is signed: a stranger's (unsigned, or signed with another key) saying
+    everything is saved is refused, and the actor keeps every transition until the learner's says so."""
+    name, key = unique_name("ts"), mac_key("the stack's token")
+    actor = Bus(open_session(ZenohConfig(listen=(endpoint,))), name, key)
+    learner = Bus(open_session(ZenohConfig(connect=(endpoint,))), name, key)
+    strangers = [Bus(open_session(ZenohConfig(connect=(endpoint,))), name, k) for k in (None, mac_key("x"))]
+    try:
+        outbox = _outbox(actor)
+        inbox = Inbox(learner, {})
+        _wait_matched(actor)
+        for _ in range(10):
+            outbox.send(_tick())
+        assert _learn(inbox, outbox, 10) == list(range(10))
+        for stranger in strangers:
+            pub = stranger.publisher(m.TRANSITION_ACKS)
+            _wait_matched(stranger, m.TRANSITION_ACKS)
+            for _ in range(5):
+                pub(m.TransitionAck(stream=outbox.stream, learned=10, saved=10, learner="stranger"))
+        time.sleep(0.5)
+        assert outbox.unsaved() == 10  # nothing forgotten on a stranger's word
+        inbox.checkpointed({outbox.stream: 10})
+        wait_until(lambda: outbox.unsaved() == 0, 10, "the learner's own ack")
+    finally:
+        for bus in (*strangers, learner, actor):
+            bus.close()
+
+
+def test_nothing_is_sent_again_to_a_learner_that_is_gone_until_one_speaks():
+    """A dead or stopped learner acks nothing: the actor does not flood the bus with what it keeps; a
+    learner that speaks again (a new process) gets it all at once."""
+    now = [0.0]
+    sent: list[int] = []
+    outbox = Outbox(lambda msg: sent.append(msg.step), 1000, clock=lambda: now[0])
+    outbox.on_ack(m.TransitionAck(stream=outbox.stream, learned=0, saved=0, learner="a"))
+    for _ in range(20):
+        outbox.send(_tick())
+    outbox.on_ack(m.TransitionAck(stream=outbox.stream, learned=20, saved=5, learner="a"))
+    for _ in range(10):
+        outbox.send(_tick())
+    for t in (0.5, 2.0, 10.0, 60.0):  # learner "a" died after its last ack
+        now[0] = t
+        assert outbox.resend() == 0
+    assert sent == list(range(30)) and outbox.unsaved() == 25
+    outbox.on_ack(m.TransitionAck(stream=outbox.stream, learned=5, saved=5, learner="b"))  # resumed
+    assert outbox.resend() == 25 and sent[30:] == list(range(5, 30))
