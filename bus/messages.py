@@ -74,7 +74,9 @@ class Topic(Generic[M]):
     for queue space rather than lose the message (only for rare messages put outside the control loop).
     ``kept``: the publisher keeps its newest this many messages, so a subscriber that missed some (a
     recorder stopped for seconds) asks for them back (Zenoh's advanced publisher: cache, heartbeat);
-    0 for the camera's images, too big to keep and replaced by the next one anyway.
+    0 for the camera's images, too big to keep and replaced by the next one anyway. ``fleet``: the topic
+    is the fleet's (``adaptiveh/<name>/…``: the learner's, one for all arms), not an arm's
+    (``adaptiveh/<name>/<arm>/…`` in a fleet; the same key when the stack has one arm).
     """
 
     name: str
@@ -82,6 +84,7 @@ class Topic(Generic[M]):
     urgent: bool = False
     never_drop: bool = False
     kept: int = 0
+    fleet: bool = False
 
     def key(self, robot: str) -> str:
         return key(robot, self.name)
@@ -110,31 +113,43 @@ CAMERA = Topic("camera/frame", CameraFrame)
 CAMERA_ANNOTATED = Topic("camera/annotated", AnnotatedImage)
 CMD_CHUNK = Topic("cmd/chunk", ActionChunk, kept=KEPT)
 CHUNK_STATUS = Topic("cmd/status", ChunkStatus, kept=KEPT)
-EVENTS_RETREAT = Topic("events/retreat", RetreatEvent, kept=KEPT)
+EVENTS_RETREAT = Topic("events/retreat", RetreatEvent, kept=KEPT, fleet=True)
 EVENTS_SAFETY = Topic("events/safety", SafetyEvent, urgent=True, kept=KEPT)
-TELEMETRY_LEARNER = Topic("telemetry/learner", LearnerTelemetry, kept=KEPT)
+TELEMETRY_LEARNER = Topic("telemetry/learner", LearnerTelemetry, kept=KEPT, fleet=True)
 CONTROL = Topic("control", Control, urgent=True, never_drop=True, kept=KEPT)
+# The operator's commands to every arm at once (E-STOP all) and to the learner (pause, resume); with one
+# arm the same key as CONTROL.
+FLEET_CONTROL = Topic("control", Control, urgent=True, never_drop=True, kept=KEPT, fleet=True)
 # Simulation only: the target's ground truth, for the sim camera, tests and benchmarks (the learner's
 # observation only when a test asks for it with ``learner.target_topic``).
 TARGET_TRUTH = Topic("sim/target_truth", Target, kept=KEPT)
 # The actor beside the arm and the learner anywhere (deploy.actor_node): the policy one way, every executed
 # tick the other. Snapshots are rare and must not be lost; the stream is kept so a stalled reader catches up.
-POLICY = Topic("policy/snapshot", PolicySnapshot, never_drop=True, kept=8)
-TRANSITIONS = Topic("stream/transition", Transition, kept=KEPT)
+POLICY = Topic("policy/snapshot", PolicySnapshot, never_drop=True, kept=8, fleet=True)
+TRANSITIONS = Topic("stream/transition", Transition, kept=KEPT, fleet=True)
 # The learner's account of each actor's stream: what it learned and checkpointed (deploy.transition_stream).
-TRANSITION_ACKS = Topic("stream/ack", TransitionAck)
+TRANSITION_ACKS = Topic("stream/ack", TransitionAck, fleet=True)
 RESET = Service("reset", ResetRequest, ResetReply)
 
-TOPICS: dict[str, Topic[Any]] = {t.name: t for t in list(globals().values()) if isinstance(t, Topic)}
+TOPICS: dict[str, Topic[Any]] = {}
+for _t in [t for t in list(globals().values()) if isinstance(t, Topic)]:
+    TOPICS.setdefault(_t.name, _t)  # by name: CONTROL and FLEET_CONTROL are one message on two keys
 MESSAGE_TYPES = tuple(getattr(pb, name) for name in pb.DESCRIPTOR.message_types_by_name)
 
 
 def topic_of_key(k: str) -> Topic[Any] | None:
-    """The topic of ``adaptiveh/<robot>/<topic>``, or None for a key outside the schema."""
-    parts = k.split("/", 2)
+    """The topic of ``adaptiveh/<robot>/<topic>`` or of an arm's ``adaptiveh/<robot>/<arm>/<topic>``
+    (an arm is never named like a topic's first part: ``deploy.config.ArmConfig``), or None for a key
+    outside the schema."""
+    parts = k.split("/", 3)
     if len(parts) < 3 or parts[0] != NAMESPACE:
         return None
-    return TOPICS.get(parts[2])
+    found = TOPICS.get("/".join(parts[2:]))
+    return found if found is not None or len(parts) < 4 else TOPICS.get(parts[3])
+
+
+TOPIC_ROOTS = frozenset(t.name.split("/")[0] for t in TOPICS.values()) | {LIVELINESS, "reset"}
+"""First key parts of the schema's topics: an arm's name must be none of them."""
 
 
 # -- strict decoding ----------------------------------------------------------------------------------

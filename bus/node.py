@@ -30,12 +30,18 @@ class Node:
     alive_as: ClassVar[str] = ""
 
     def __init__(
-        self, robot: str, zenoh: ZenohConfig | None = None, bus: Bus | None = None, token: str = ""
+        self,
+        robot: str,
+        zenoh: ZenohConfig | None = None,
+        bus: Bus | None = None,
+        token: str = "",
+        fleet: str | None = None,
     ) -> None:
-        """``token``: the stack's operator token; the part's bus signs and verifies with its key."""
+        """``token``: the stack's operator token; the part's bus signs and verifies with its key.
+        ``robot``: this part's keys (``<name>/<arm>`` for an arm of a fleet ``fleet``)."""
         if bus is None and zenoh is None:
             raise ValueError("a node needs a Zenoh config or a bus")
-        self.bus = bus if bus is not None else Bus.open(zenoh, robot, mac_key(token))
+        self.bus = bus if bus is not None else Bus.open(zenoh, robot, mac_key(token), fleet=fleet)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
 

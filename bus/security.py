@@ -260,8 +260,8 @@ def access_control(tls: TlsConfig | None, auth: AuthConfig | None) -> dict[str, 
     if not ((tls is not None and tls.mtls) or auth is not None):  # a subject without either matches anyone
         raise ValueError("access control by identity needs zenoh.tls with mtls or zenoh.auth")
 
-    def keys(rel: tuple[str, ...]) -> list[str]:
-        return [f"{m.NAMESPACE}/*/{k}" for k in rel]
+    def keys(rel: tuple[str, ...]) -> list[str]:  # a stack's keys, and an arm's of a fleet
+        return [f"{m.NAMESPACE}/{owner}/{k}" for k in rel for owner in ("*", "*/*")]
 
     everything = [f"{m.NAMESPACE}/**"]
     rules: list[dict[str, Any]] = [

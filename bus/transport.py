@@ -239,9 +239,12 @@ class Bus:
     verify, as bad messages (a subscriber may opt out to judge them itself: robot-io answers a forged
     chunk, and obeys an e-stop from anyone)."""
 
-    def __init__(self, session: zenoh.Session, robot: str, key: bytes | None = None) -> None:
+    def __init__(
+        self, session: zenoh.Session, robot: str, key: bytes | None = None, fleet: str | None = None
+    ) -> None:
         self.session = session
-        self.robot = robot
+        self.robot = robot  # this part's keys: the stack's name, or ``<name>/<arm>`` for an arm of a fleet
+        self.fleet = fleet or robot  # the keys every arm shares (``Topic.fleet``: the learner's)
         self.signing_key = key
         self.bad_messages: dict[str, int] = {}  # per topic: undecodable, invalid, forged or replayed
         self._reports = Throttle("like it")  # one log line per topic and reason per interval, not per message
@@ -258,7 +261,14 @@ class Bus:
         self._gap_judged_busy = (-float("inf"), 0.0)  # (when, how long) a long gap was judged no stop
 
     @classmethod
-    def open(cls, cfg: ZenohConfig, robot: str, key: bytes | None = None, identity: str | None = None) -> Bus:
+    def open(
+        cls,
+        cfg: ZenohConfig,
+        robot: str,
+        key: bytes | None = None,
+        identity: str | None = None,
+        fleet: str | None = None,
+    ) -> Bus:
         """A bus on its own session that reopens that session when this process was stalled.
 
         A process stopped (SIGSTOP, swap, a debugger) for about a lease comes back to links that only
@@ -270,7 +280,7 @@ class Bus:
         that holds a fixed listener (the hub's owner): the new one could not listen beside it.
         """
         session, again = _open(cfg, identity)
-        bus = cls(session, robot, key)
+        bus = cls(session, robot, key, fleet)
         bus._reopen = again
         if again is not None:
             bus._stall_s = STALL_LEASES * cfg.lease_ms / 1000
@@ -398,8 +408,13 @@ class Bus:
             self.renewals += 1
         return True
 
-    def key(self, topic: Topic[Any] | Service[Any, Any] | str) -> str:
-        return messages.key(self.robot, topic if isinstance(topic, str) else topic.name)
+    def key(self, topic: Topic[Any] | Service[Any, Any] | str, arm: str | None = None) -> str:
+        """``topic``'s key: the fleet's for a fleet topic; else this part's arm, or ``arm`` of the fleet
+        (``*``: any arm's)."""
+        name = topic if isinstance(topic, str) else topic.name
+        if getattr(topic, "fleet", False):
+            return messages.key(self.fleet, name)
+        return messages.key(self.robot if arm is None else f"{self.fleet}/{arm}", name)
 
     def report_bad(self, name: str, exc: Exception) -> None:
         """Count a bad message on topic ``name`` and log it, rate-limited per key and reason (a part that
@@ -417,8 +432,10 @@ class Bus:
         express: bool = True,
         first_seq: int = 1,
         seal: Callable[[M], None] | None = None,
+        arm: str | None = None,
     ) -> Publisher[M]:
-        """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed)."""
+        """A publisher of ``topic``'s type on its key (``seal``: see ``Publisher``; then it is signed;
+        ``arm``: another arm's key of the fleet, as ``key``)."""
         congestion = zenoh.CongestionControl
 
         qos = {
@@ -429,10 +446,10 @@ class Bus:
 
         def make(session: zenoh.Session) -> zenoh.Publisher | zenoh.ext.AdvancedPublisher:
             if not topic.kept:
-                return session.declare_publisher(self.key(topic), **qos)
+                return session.declare_publisher(self.key(topic, arm), **qos)
             return zenoh.ext.declare_advanced_publisher(  # a subscriber that missed some asks for them
                 session,
-                self.key(topic),
+                self.key(topic, arm),
                 **qos,
                 cache=zenoh.ext.CacheConfig(topic.kept),
                 sample_miss_detection=zenoh.ext.MissDetectionConfig(
@@ -467,10 +484,12 @@ class Bus:
         on_bad: Callable[[str, Exception, bytes], None] | None = None,
         verify: bool = True,
         check: Callable[[M], str | None] | None = None,
+        arm: str | None = None,
     ) -> None:
         """Call ``callback`` with each decoded (and, with a key, authentic and new) message; bad bytes are
         counted, logged (rate-limited) and reported to ``on_bad`` (topic, error, the bytes). ``check``:
-        the reader's own rule (e.g. a view's range), its complaint handled as a bad message's."""
+        the reader's own rule (e.g. a view's range), its complaint handled as a bad message's. ``arm``:
+        another arm's key of the fleet, as ``key``."""
         verifier = Verifier(self.signing_key) if verify and self.signing_key and signed(topic.type) else None
 
         def handler(sample: zenoh.Sample) -> None:
@@ -492,7 +511,7 @@ class Bus:
             except Exception:  # a handler bug must not kill Zenoh's thread
                 log.exception("handler for %s failed", self.key(topic))
 
-        self.declare(lambda s: s.declare_subscriber(self.key(topic), handler))
+        self.declare(lambda s: s.declare_subscriber(self.key(topic, arm), handler))
 
     def queryable(self, service: Service[M, R], handler: Callable[[M], R]) -> None:
         """Answer queries: the payload decodes to the request type, the reply is ``handler``'s."""
@@ -561,6 +580,21 @@ class Bus:
             on_change(name, sample.kind == zenoh.SampleKind.PUT)
 
         self.declare(lambda s: s.liveliness().declare_subscriber(prefix + "*", handler, history=True))
+
+    def watch_arms(self, part: str, on_change: Callable[[str, bool], None]) -> None:
+        """``on_change(arm, alive)`` whenever ``part`` (e.g. ``actor``) of an arm of the fleet comes or goes
+        (``adaptiveh/<fleet>/<arm>/alive/<part>``; ``arm`` "" for a stack of one arm), those present first."""
+        fleet = messages.key(self.fleet, "")
+        tail = f"/{messages.LIVELINESS}/{part}"
+
+        def handler(sample: zenoh.Sample) -> None:
+            arm = str(sample.key_expr)[len(fleet) : -len(tail)]
+            on_change(arm, sample.kind == zenoh.SampleKind.PUT)
+
+        for below in (fleet.rstrip("/"), fleet + "*"):
+            self.declare(
+                lambda s, k=below + tail: s.liveliness().declare_subscriber(k, handler, history=True)
+            )
 
     def close(self) -> None:
         with self._renew_lock:

@@ -17,7 +17,6 @@ import json
 import logging
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,6 +27,7 @@ from common.throttle import EVENT_EVERY_S, Throttle
 from deploy.config import StackConfig
 from deploy.policy_wire import snapshot_from_message
 from deploy.robot_link import LinkStopped
+from deploy.run_report import actor_counts_path
 from deploy.transition_stream import Outbox
 from deploy.zenoh_env import ZenohReachEnv, env_settings
 from learner.acting import SegmentLoop, Tick
@@ -45,12 +45,13 @@ class ActorNode(Node):
     alive_as = "actor"
 
     def __init__(self, settings: StackConfig, control_token: str = "") -> None:
-        super().__init__(settings.name, settings.zenoh, token=control_token)
+        super().__init__(settings.bus_key, settings.zenoh, token=control_token, fleet=settings.name)
         lc = settings.learner
         # The actor plays each plan at once: the learner's latency delays snapshots, not plans.
         self.env = ZenohReachEnv(self.bus, env_settings(settings))
         self.actor = Actor(self.env, rkhs_config(lc.algo, AdaptiveHConfig(**lc.agent_config())), lc.seed)
-        self.out = Path(lc.checkpoint_dir) / "actor.json"
+        self.arm = settings.arm or ""  # of a fleet: its transitions and counts say so
+        self.out = actor_counts_path(lc.checkpoint_dir, self.arm)
         self.handoff = lc.policy_from  # then the first plan waits for the learner's first snapshot
         self.error = ""  # why acting ended, when it did not end by a stop
         self._lock = threading.Lock()
@@ -192,6 +193,7 @@ class ActorNode(Node):
             end=m.enum(m.Transition, "end", tick.end),
             policy_version=max(self.actor.version, 0),
             target_age=float(step.info.get("target_age_s", 0.0)),
+            arm=self.arm,
         )
         if tick.statistic is not None:
             msg.statistic = tick.statistic
@@ -217,6 +219,7 @@ class ActorNode(Node):
             "transitions_resent": self.outbox.resent,
             "transitions_lost": self.outbox.lost,
             "error": self.error,
+            "arm": self.arm,
         }
         self.out.parent.mkdir(parents=True, exist_ok=True)
         self.out.write_text(json.dumps(out, indent=1))

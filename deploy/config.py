@@ -14,6 +14,7 @@ from typing import Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from bus.messages import TOPIC_ROOTS
 from bus.transport import ZenohConfig
 from common.config import Box3, ConfigError, Section, compose_yaml, describe, load_yaml, overlay, parse
 from learner.config import AGENT_CONFIGS
@@ -202,6 +203,54 @@ class SupervisorConfig(Section):
         return value
 
 
+class ArmConfig(Section):
+    """One arm of a fleet: its own robot-io and actor (and camera, when the stack has ``vision``)."""
+
+    name: str = Field(
+        pattern=r"^[A-Za-z0-9_-]+$", description="the arm's part of its keys: adaptiveh/<name>/<arm>/..."
+    )
+    seed: int = Field(
+        description="the arm's own seed: its target's motion (robot.seed) and its actor's exploration and"
+        " episodes (learner.seed)"
+    )
+
+    @field_validator("name")
+    @classmethod
+    def _not_a_topic(cls, name: str) -> str:
+        if name in TOPIC_ROOTS:
+            raise ValueError(f"{name!r} is a topic's key part ({sorted(TOPIC_ROOTS)} are taken)")
+        return name
+
+
+class FleetConfig(Section):
+    """The ``fleet:`` section: several arms feed one learner, which publishes one policy to all."""
+
+    arms: tuple[ArmConfig, ...] = Field(
+        min_length=1,
+        description="the arms, each with its own robot-io and actor (adaptiveh up starts them all)",
+    )
+
+    @field_validator("arms")
+    @classmethod
+    def _unique(cls, arms: tuple[ArmConfig, ...]) -> tuple[ArmConfig, ...]:
+        names = [a.name for a in arms]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"arm names must differ: {twice} named twice")
+        return arms
+
+    def arm(self, name: str) -> ArmConfig:
+        for arm in self.arms:
+            if arm.name == name:
+                return arm
+        raise ValueError(f"no arm {name!r} in the fleet (arms: {[a.name for a in self.arms]})")
+
+
+# Learner state that runs across an episode's ticks: pooled arms' ticks interleave, so each would need
+# one per arm; the fleet's learner keeps the open segment and the episode's return per arm only.
+PER_EPISODE_TRACES = ("critic_lambda", "advantage_lambda")
+
+
 class StackConfig(Section):
     """A whole top-level config: one robot's stack. ``vision``/``monitor`` absent: that part is not run."""
 
@@ -226,10 +275,58 @@ class StackConfig(Section):
     supervisor: SupervisorConfig = Field(
         SupervisorConfig(), description="how ``adaptiveh up`` restarts a part that crashed"
     )
+    fleet: FleetConfig | None = Field(
+        None, description="several arms, one learner (null: one arm, keyed adaptiveh/<name>/...)"
+    )
+    arm: str | None = Field(
+        None,
+        description="the arm of the fleet this process serves (set by the parts' --arm, not in a file);"
+        " its keys are adaptiveh/<name>/<arm>/...",
+    )
+
+    @property
+    def bus_key(self) -> str:
+        """This process's own keys: the stack's name, or ``<name>/<arm>`` for an arm of a fleet."""
+        return f"{self.name}/{self.arm}" if self.arm else self.name
+
+    @property
+    def arm_names(self) -> list[str]:
+        """The arms ``adaptiveh up`` starts: the fleet's, or [""] for the one arm of a plain stack."""
+        return [a.name for a in self.fleet.arms] if self.fleet is not None else [""]
+
+    def for_arm(self, name: str) -> StackConfig:
+        """The config as arm ``name``'s parts read it: its keys, its seeds (``ArmConfig.seed``)."""
+        if self.fleet is None:
+            raise ConfigError(f"arm {name!r}: the config has no fleet section")
+        try:
+            arm = self.fleet.arm(name)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        robot = self.robot.model_copy(update={"seed": arm.seed})
+        learner = self.learner.model_copy(update={"seed": arm.seed})
+        return self.model_copy(update={"arm": name, "robot": robot, "learner": learner})
 
     def view_limits(self) -> ViewLimits:
         """What the operator's views of this stack will plot (``monitor.view_limits``)."""
         return ViewLimits(self.learner.longest_segment)
+
+    @model_validator(mode="after")
+    def _fleet_learns_from_actors(self) -> StackConfig:
+        if self.fleet is None:
+            if self.arm is not None:
+                raise ValueError(f"arm {self.arm!r}: the config has no fleet section")
+            return self
+        if self.learner.execution != "actor":
+            raise ValueError("fleet: needs learner.execution actor (an actor beside each arm)")
+        traced = [k for k in PER_EPISODE_TRACES if self.learner.agent.get(k, 0) > 0]
+        if traced:
+            raise ValueError(
+                f"fleet: learner.agent.{traced[0]} > 0 keeps one trace across an episode's ticks, and pooled"
+                " arms' ticks interleave; set it to 0"
+            )
+        if self.arm is not None:
+            self.fleet.arm(self.arm)
+        return self
 
     @model_validator(mode="after")
     def _sim_camera_needs_sim_arm(self) -> StackConfig:

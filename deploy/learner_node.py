@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import queue
 import threading
 import time
 from pathlib import Path
@@ -63,6 +64,8 @@ def learn_transition(agent: Agent, t: m.Transition) -> Any:
         m.label(t, "end"),
         t.statistic if t.HasField("statistic") else None,
         np.asarray(t.noise, float) if len(t.noise) else None,
+        stream=t.stream,
+        arm=t.arm,
     )
 
 
@@ -75,7 +78,7 @@ class LearnerNode(Node):
         self.settings = settings
         self.cfg = settings.learner
         self._fresh_control = Fresh()
-        super().__init__(settings.name, settings.zenoh, token=control_token)
+        super().__init__(settings.bus_key, settings.zenoh, token=control_token, fleet=settings.name)
         self.stream = self.cfg.execution == "actor"  # learn from an actor's stream; never drive the robot
         self.env = (
             ReachSpec(env_settings(settings))
@@ -104,12 +107,15 @@ class LearnerNode(Node):
         self._episodes_seen = self.agent.log.episode_count
         self._segments_seen = self.agent.log.segment_count
         self.archive = RunArchive(self.ckpt.parent, self.agent.log)
+        self._arm_changes: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()  # (arm, alive)
+        self.arms_seen: dict[str, int] = {}  # arm -> times its actor came (fleet: arms come and go)
         if self.stream:
             self.feed = Inbox(self.bus, getattr(self.agent, "stream_marks", {}))
+            self.bus.watch_arms("actor", lambda arm, alive: self._arm_changes.put((arm, alive)))
             self._pub_policy = self.bus.publisher(m.POLICY)
             delay = self.cfg.latency_ms / 1000.0
             self._snapshot_sender = DelayedSender(self._pub_policy, delay, self._stop) if delay > 0 else None
-        self.bus.subscribe(m.CONTROL, self._on_control, verify=False)  # judged in _on_control
+        self.bus.subscribe(m.FLEET_CONTROL, self._on_control, verify=False)  # judged in _on_control
         self.declare_alive()
 
     # -- plan and accounting -------------------------------------------------------------------------
@@ -163,6 +169,7 @@ class LearnerNode(Node):
                     statistic=[x if np.isfinite(x) else 0.0 for x in rec.statistic],
                     threshold=float(rec.threshold),
                     global_step=rec.global_step,
+                    arm=rec.arm,
                 )
             )
             if not self.stream:
@@ -185,6 +192,7 @@ class LearnerNode(Node):
         every second: a subscriber has no history, so an actor that joins later would never get it."""
         quiet_since = time.monotonic()
         while self.agent.log.global_step < self.cfg.steps and self._gate():
+            self._arms_come_and_go()
             self.feed.ack()
             t = self.feed.get(timeout=0.25)
             if t is None:
@@ -201,6 +209,24 @@ class LearnerNode(Node):
             self._after_step()
             if progress is not None:
                 progress(self)
+
+    def _arms_come_and_go(self) -> None:
+        """An arm's actor that comes gets the policy at once (a subscriber has no history); one that goes
+        has its open segment closed, and the others go on untouched."""
+        while True:
+            try:
+                arm, alive = self._arm_changes.get_nowait()
+            except queue.Empty:
+                return
+            if alive:
+                self.arms_seen[arm] = self.arms_seen.get(arm, 0) + 1
+                log.info("arm %r: its actor is up", arm)
+                if self._holds_policy():
+                    self._publish_snapshot()
+            else:
+                closed = self.agent.close_arm(arm)
+                log.warning("arm %r: its actor is gone (%d open segment closed)", arm, len(closed))
+                self._after_step()
 
     def _holds_policy(self) -> bool:
         """A policy worth publishing unasked: handed off, or learned (this run or before a restart)."""

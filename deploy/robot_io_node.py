@@ -114,7 +114,7 @@ class RobotIONode(Node):
         self.watch_peers = watch_peers
         self._fresh_reset, self._fresh_control = Fresh(), Fresh()
         self._bad_events = Throttle("bad messages", EVENT_EVERY_S)
-        super().__init__(settings.name, settings.zenoh, token=control_token)
+        super().__init__(settings.bus_key, settings.zenoh, token=control_token, fleet=settings.name)
         self.mac_key = self.bus.signing_key  # with a token, only signed chunks, resets and controls
         self._pub_state = self.bus.publisher(m.STATE)
         self._pub_status = self.bus.publisher(m.CHUNK_STATUS)
@@ -127,6 +127,8 @@ class RobotIONode(Node):
         # Judged here, not by the bus: a forged chunk gets its verdict, an e-stop is obeyed from anyone.
         self.bus.subscribe(m.CMD_CHUNK, self._on_chunk, on_bad=self._on_bad, verify=False)
         self.bus.subscribe(m.CONTROL, self._on_control, on_bad=self._on_bad, verify=False)
+        if self.bus.fleet != self.bus.robot:  # an arm of a fleet also obeys the fleet's (E-STOP all)
+            self.bus.subscribe(m.FLEET_CONTROL, self._on_control, on_bad=self._on_bad, verify=False)
         self.bus.queryable(m.RESET, self._on_reset)
         self.bus.watch_alive(self._on_alive)
         self.bus.watch_alive(self.controller.learner_alive, below=SESSIONS)

@@ -14,6 +14,38 @@ def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.0f} %"
 
 
+def actor_counts_path(checkpoint_dir: str | Path, arm: str = "") -> Path:
+    """Where the actor of ``arm`` ("": a stack's only one) writes what it did (``actor.json``)."""
+    return Path(checkpoint_dir) / (f"actor-{arm}.json" if arm else "actor.json")
+
+
+def by_quarter(success: list[bool]) -> list[float | None] | None:
+    """Success rate in each quarter of the episodes (None with fewer than 4)."""
+    if len(success) < 4:
+        return None
+    q = len(success) // 4
+    return [sum(success[i * q : (i + 1) * q]) / q for i in range(4)]
+
+
+def arm_summaries(episodes: list[dict[str, Any]], actors: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """A row per arm of a fleet: its episodes (the learner's record of them) and its actor's counts."""
+    rows = {}
+    for arm, actor in actors.items():
+        success = [bool(e.get("success")) for e in episodes if e.get("arm", "") == arm]
+        rows[arm] = {
+            "episodes": len(success),
+            "steps": actor.get("steps"),
+            "success_rate_by_quarter": by_quarter(success),
+            "success_rate": sum(success) / len(success) if success else None,
+            "segments": actor.get("segments"),
+            "retreats": actor.get("retreats"),
+            "policy_version": actor.get("policy_version"),
+            "transitions_lost": actor.get("transitions_lost"),
+            "error": actor.get("error") or None,
+        }
+    return rows
+
+
 def summary_table(s: dict[str, Any]) -> str:
     """The summary as aligned ``what | value`` rows."""
     quarters = s.get("success_rate_by_quarter")
@@ -50,6 +82,17 @@ def summary_table(s: dict[str, Any]) -> str:
         ("messages refused as forged/bad", str(sum((s.get("rejected_messages") or {}).values()))),
         ("recording", f"{s.get('recording')} ({s.get('recording_lost') or 0} messages lost)"),
     ]
+    for arm, row in (s.get("arms") or {}).items():
+        quarters = row.get("success_rate_by_quarter")
+        success = " / ".join(_pct(q) for q in quarters) if quarters else f"{row['episodes']} episodes"
+        rows.append(
+            (
+                f"arm {arm}",
+                f"success {success}, {row.get('steps') or 0} steps, {row.get('retreats') or 0} retreats"
+                f" of {row.get('segments') or 0} segments,"
+                f" {row.get('transitions_lost') or 0} transitions lost",
+            )
+        )
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"  {k:<{width}} | {v}" for k, v in rows)
 

@@ -34,7 +34,7 @@ from common.errors import AdaptiveHError
 from common.heap import ALLOCATOR_ENV
 from deploy.config import ConfigError, load_stack_config
 from deploy.part_env import SUPERVISOR_ENV, TOKEN_ENV
-from deploy.run_report import learning_curve
+from deploy.run_report import actor_counts_path, arm_summaries, by_quarter, learning_curve
 from learner.run_summary import h_stats
 from monitor.foxglove.derive import Deriver, SceneSetup
 from monitor.recording import Recorder, parts
@@ -50,17 +50,34 @@ PART_COMMANDS = {
     "monitor": "monitor",
     "learner": "learn",
 }
+ARM_PARTS = ("robot_io", "actor", "vision")  # one of each per arm of a fleet; the rest serve all arms
+STOP_ORDER = ("learner", "actor", "monitor", "vision", "robot_io")  # the learner first: it checkpoints
+
+
+def part_name(part: str, arm: str) -> str:
+    """A part's name in the supervisor, its log and ``running_parts``: ``robot_io``, or ``robot_io@arm0``
+    for an arm of a fleet."""
+    return f"{part}@{arm}" if arm else part
+
+
+def base_part(name: str) -> str:
+    """``robot_io`` of ``robot_io@arm0``."""
+    return name.split("@", 1)[0]
 
 
 def running_parts(config: str | Path) -> dict[str, int]:
     """pid of every running ``deploy.cli <part command> --config <config>`` process, by part command
-    (Linux: reads /proc): what a stack, or its orphans, has running on this machine. A process whose
-    parent runs the same part is that part's fork (a child between fork and exec still has the parent's
-    command line), not the part."""
+    (``robot-io@arm0`` for an arm of a fleet; Linux: reads /proc): what a stack, or its orphans, has
+    running on this machine. A process whose parent runs the same part is that part's fork (a child
+    between fork and exec still has the parent's command line), not the part."""
     commands, found = set(PART_COMMANDS.values()), {}
     for pid in filter(str.isdigit, os.listdir("/proc")):
         command = _part_command(int(pid), str(config))
-        if command in commands and _part_command(_parent(int(pid)), str(config)) != command:
+        if (
+            command is not None
+            and base_part(command) in commands
+            and (_part_command(_parent(int(pid)), str(config)) != command)
+        ):
             found[command] = int(pid)
     return found
 
@@ -73,7 +90,9 @@ def _part_command(pid: int, config: str) -> str | None:
         return None
     words = [a.decode(errors="replace") for a in args]
     if config in words and "deploy.cli" in words and words.index("deploy.cli") + 1 < len(words):
-        return words[words.index("deploy.cli") + 1]
+        command = words[words.index("deploy.cli") + 1]
+        arm = words[words.index("--arm") + 1] if "--arm" in words[:-1] else ""
+        return part_name(command, arm)
     return None
 
 
@@ -146,9 +165,16 @@ class Stack:
         progress: bool = True,
         policy_from: str | None = None,
         python: str = sys.executable,
+        arms: list[str] | None = None,
     ) -> None:
+        """``arms``: run only these arms' parts (another machine's share of a fleet: no learner, no
+        monitor); [] the learner and monitor only; None everything."""
         self.config = str(config)
         self.cfg = load_stack_config(config, learner={"policy_from": policy_from})
+        for arm in arms or []:
+            self.cfg.for_arm(arm)  # a ConfigError names an arm the fleet lacks
+        self.arms = self.cfg.arm_names if arms is None else arms
+        self.serves_fleet = arms is None or not arms  # the learner and monitor run here
         self.policy_from = policy_from
         self.name = self.cfg.name
         self.token = token or secrets.token_urlsafe(12)
@@ -176,26 +202,40 @@ class Stack:
         self.handoff: dict[str, Any] | None = None  # what learner.policy_from hands over (checked at start)
 
     def part_commands(self) -> dict[str, list[str]]:
-        """Each part's command line, in start order. The token is not on it (``ps`` shows argv to every
-        local user): it reaches the parts through their environment (``part_environment``)."""
-        cmds = {part: [command] for part, command in PART_COMMANDS.items()}
-        if self.cfg.vision is None:
-            del cmds["vision"]
-        if self.cfg.monitor is None:
-            del cmds["monitor"]
-        if self.cfg.learner.execution == "actor":
-            cmds["robot_io"] += [
+        """Each part's command line, in start order (an arm's parts per arm). The token is not on it
+        (``ps`` shows argv to every local user): it reaches the parts through their environment
+        (``part_environment``)."""
+        actor = self.cfg.learner.execution == "actor"
+        wanted = {
+            "robot_io": True,
+            "actor": actor,
+            "vision": self.cfg.vision is not None,
+            "monitor": self.cfg.monitor is not None and self.serves_fleet,
+            "learner": self.serves_fleet,
+        }
+        extra: dict[str, list[str]] = {part: [] for part in PART_COMMANDS}
+        if actor:
+            extra["robot_io"] += [
                 "--watch",
                 "actor",
             ]  # the actor commands the arm; the learner may come and go
-        else:
-            del cmds["actor"]
         if self.steps is not None:
-            cmds["learner"] += ["--steps", str(self.steps)]
+            extra["learner"] += ["--steps", str(self.steps)]
         if self.policy_from is not None:
             for part in ("learner", "actor"):
-                if part in cmds:
-                    cmds[part] += ["--policy-from", self.policy_from]
+                extra[part] += ["--policy-from", self.policy_from]
+        cmds: dict[str, list[str]] = {}
+        for arm in self.arms:
+            for part in ARM_PARTS:
+                if wanted[part]:
+                    cmds[part_name(part, arm)] = [
+                        PART_COMMANDS[part],
+                        *extra[part],
+                        *(["--arm", arm] if arm else []),
+                    ]
+        for part in ("monitor", "learner"):
+            if wanted[part]:
+                cmds[part] = [PART_COMMANDS[part], *extra[part]]
         base = [self.python, "-m", "deploy.cli"]
         tail = ["--config", self.config, "--log-level", "WARNING"]
         return {part: [*base, *args, *tail] for part, args in cmds.items()}
@@ -211,7 +251,7 @@ class Stack:
             TOKEN_ENV: self.token,
         }
         if part is not None:
-            env[IDENTITY_ENV] = PART_IDENTITY[part]
+            env[IDENTITY_ENV] = PART_IDENTITY[base_part(part)]
         return env
 
     def _spawn(self, part: str) -> None:
@@ -226,7 +266,7 @@ class Stack:
                 env=self.part_environment(part),
                 start_new_session=True,
             )
-        nice = self.cfg.supervisor.nice.get(part, 0)
+        nice = self.cfg.supervisor.nice.get(base_part(part), 0)
         if nice and hasattr(os, "setpriority"):
             os.setpriority(os.PRIO_PROCESS, self.procs[part].pid, nice)
         log.info("started %s (pid %d, nice %d)", part, self.procs[part].pid, nice)
@@ -307,6 +347,7 @@ class Stack:
                 flush_s=self.recording.flush_s,
                 split_s=self.recording.split_s,
                 key=bus.signing_key,
+                arms=tuple(a for a in self.cfg.arm_names if a),
             )
         bus.subscribe(m.EVENTS_RETREAT, self._on_segment, check=self.limits.problem)
         bus.subscribe(m.EVENTS_SAFETY, lambda e: self.safety_kinds.update([m.label(e, "kind")]))
@@ -322,7 +363,7 @@ class Stack:
                         print(f"foxglove: {self.foxglove_url} (Foxglove: Open connection)", flush=True)
             last = 0.0
             while not self._stop.is_set():
-                if self.procs["learner"].poll() == 0:
+                if "learner" in self.procs and self.procs["learner"].poll() == 0:
                     break  # the learner did its steps: the run is complete
                 dead = [(p, proc.returncode) for p, proc in self.procs.items() if proc.poll() is not None]
                 self.gave_up = next((part for part, code in dead if not self._restart_or_end(part, code)), "")
@@ -374,9 +415,9 @@ class Stack:
 
     def stop_parts(self) -> None:
         """SIGTERM learner first (it checkpoints), then the rest; SIGKILL whatever ignores it."""
-        for part in ("learner", "actor", "monitor", "vision", "robot_io"):
-            proc = self.procs.get(part)
-            if proc is not None and proc.poll() is None:
+        for part in sorted(self.procs, key=lambda name: STOP_ORDER.index(base_part(name))):
+            proc = self.procs[part]
+            if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
                 try:
                     proc.wait(timeout=15)
@@ -388,27 +429,25 @@ class Stack:
     def summary(self, wall: float) -> dict[str, Any]:
         result_path = self.learner_dir / "result.json"
         result = json.loads(result_path.read_text()) if result_path.exists() else {}
-        actor_path = self.learner_dir / "actor.json"  # execution actor: the plans' account is the actor's
-        actor = json.loads(actor_path.read_text()) if actor_path.exists() else {}
+        actors = {arm: _read_json(actor_counts_path(self.learner_dir, arm)) for arm in self.arms}
+        actor = actors.get("", {})  # execution actor, one arm: the plans' account is the actor's
         eps = result.get("episodes", [])
         succ = [bool(e.get("success")) for e in eps]
-        q = max(1, len(succ) // 4)
-        quarters = [
-            float(np.mean(succ[i * q : (i + 1) * q])) if succ[i * q : (i + 1) * q] else None for i in range(4)
-        ]
         H = sorted(self.segment_h.elements())
+        fleet_counts = _summed(list(actors.values())) if self.cfg.fleet is not None else actor
         return {
             "wall_clock_s": wall,
             "episodes": len(eps),
             "global_step": result.get("global_step", 0),
-            "success_rate_by_quarter": quarters if len(succ) >= 4 else None,
+            "success_rate_by_quarter": by_quarter(succ),
             "success_rate": float(np.mean(succ)) if succ else None,
             "segments": len(H),
             "reasons": dict(self.reasons),
             "H": h_stats(H) if H else None,
-            "dropped_actions": actor.get("dropped_planned", result.get("dropped_actions")),
-            "retreat_preemptions": actor.get("retreat_preemptions", result.get("retreat_preemptions")),
-            "retreat_dropped": actor.get("retreat_dropped", result.get("retreat_dropped")),
+            "dropped_actions": fleet_counts.get("dropped_planned", result.get("dropped_actions")),
+            "retreat_preemptions": fleet_counts.get("retreat_preemptions", result.get("retreat_preemptions")),
+            "retreat_dropped": fleet_counts.get("retreat_dropped", result.get("retreat_dropped")),
+            "arms": arm_summaries(eps, actors) if self.cfg.fleet is not None else None,
             "actor": actor or None,
             "started_from": result.get("started_from") or self.handoff,
             "safety_events": dict(self.safety_kinds),
@@ -422,3 +461,15 @@ class Stack:
             "restarts": dict(self.restarts),
             "gave_up": self.gave_up or None,
         }
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def _summed(counts: list[dict[str, Any]]) -> dict[str, int]:
+    """The integer counts of several arms' actors, added up."""
+    total: Counter[str] = Counter()
+    for c in counts:
+        total.update({k: v for k, v in c.items() if isinstance(v, int) and not isinstance(v, bool)})
+    return dict(total)

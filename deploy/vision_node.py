@@ -113,7 +113,7 @@ class VisionNode(Node):
         self.settings = settings
         self.config = settings.vision
         self.pipeline = VisionPipeline(self.config)
-        super().__init__(settings.name, settings.zenoh, token=token)
+        super().__init__(settings.bus_key, settings.zenoh, token=token, fleet=settings.name)
         self._pub_target = self.bus.publisher(m.TARGET)
         self._pub_image = self.bus.publisher(m.CAMERA_ANNOTATED, express=False)
         self._pub_event = self.bus.publisher(m.EVENTS_SAFETY)

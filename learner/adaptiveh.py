@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import pickle
 from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
@@ -39,7 +40,7 @@ from learner.plans import Executed, Played, QueuedChannel
 from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
-from learner.retreat import RetreatCheck
+from learner.retreat import RetreatCheck, SegmentSamples
 from learner.segments import SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot
 
@@ -52,6 +53,17 @@ def _info_scalars(info: dict) -> dict[str, float]:
         elif isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v):
             out[k] = float(v)
     return out
+
+
+@dataclass
+class StreamProgress:
+    """An actor stream's open segment and episode so far: pooled arms' ticks interleave at the learner,
+    and each arm's segments and episodes stay its own."""
+
+    arm: str = ""
+    segment: SegmentSamples = field(default_factory=SegmentSamples)
+    ret: float = 0.0
+    length: int = 0
 
 
 class AdaptiveH:
@@ -112,6 +124,7 @@ class AdaptiveH:
         # Learning from actors: each actor stream's transitions learned, in order (deploy.transition_stream);
         # saved with the policy, so a resumed learner asks for exactly what it lacks.
         self.stream_marks: dict[str, int] = {}
+        self.streams: dict[str, StreamProgress] = {}  # each actor stream's open segment and episode
         self.nonfinite_skipped = 0
         # advantage_lambda > 0: samples whose λ-advantage is still accruing [s, score, advantage, weight],
         # and the matured (state, gradient) pairs that the next segment update applies.
@@ -180,7 +193,7 @@ class AdaptiveH:
             end = segment_end(retreat, len(self.retreat.states), self.segment_limit, episode_over)
         record = self._close_segment(end)
         if episode_over:
-            self._finish_episode(info)
+            self._finish_episode(info, self._ep_return, self._ep_len)
         elif np.all(np.isfinite(next_obs)):
             self._obs = np.asarray(next_obs, float)
         # else: keep acting from the last finite observation; a NaN state never reaches the policy
@@ -196,7 +209,7 @@ class AdaptiveH:
         tick = self.acting.tick()
         record = self._close_segment(tick.end)
         if tick.episode_over:
-            self._finish_episode(tick.step.info)
+            self._finish_episode(tick.step.info, self._ep_return, self._ep_len)
         else:
             self._obs = self.acting.obs
         return record
@@ -289,10 +302,15 @@ class AdaptiveH:
         end: str,
         statistic: float | None = None,
         noise: np.ndarray | None = None,
+        stream: str = "",
+        arm: str = "",
     ) -> SegmentRecord | None:
         """Learn from one tick an actor played (``deploy.actor_node``): it planned with a snapshot of this
         policy, evaluated the retreat where the plan played and says how the segment stands (``end``).
-        The critic, the gradient field and the policy update are this learner's, as in :meth:`step_env`."""
+        The critic, the gradient field and the policy update are this learner's, as in :meth:`step_env`;
+        the open segment and the episode are ``stream``'s (one per actor process, of ``arm``)."""
+        progress = self._progress(stream, arm)
+        self.retreat.segment = progress.segment
         if not self.retreat.states:
             self._schedule()  # a new segment: this step's exploration std and step size
         s = self.normalize(obs)
@@ -300,8 +318,8 @@ class AdaptiveH:
         if predicted is not None and np.all(np.isfinite(next_obs)):
             predicted, reached = self.normalize(predicted), self.normalize(next_obs)
         self.log.global_step += 1
-        self._ep_return += float(reward)
-        self._ep_len += 1
+        progress.ret += float(reward)
+        progress.length += 1
         episode_over = terminated or truncated
         retreat = self._learn_sample(
             s,
@@ -316,11 +334,39 @@ class AdaptiveH:
             statistic=statistic,
             noise=noise,
         )
-        record = self._close_segment(self._forced_end(episode_over) if retreat is None else SegmentEnd(end))
+        end = self._forced_end(episode_over) if retreat is None else SegmentEnd(end)
+        record = self._close_segment(end, arm)
+        progress.segment = self.retreat.segment
         if episode_over:
-            self._finish_episode(info)
-            self._ep_return, self._ep_len = 0.0, 0  # the actor has reset the robot
+            self._finish_episode(info, progress.ret, progress.length, arm)
+            progress.ret, progress.length = 0.0, 0  # the actor has reset the robot
         return record
+
+    def _progress(self, stream: str, arm: str) -> StreamProgress:
+        """``stream``'s progress; a new stream of an arm replaces the arm's old one (its actor restarted),
+        whose open segment closes."""
+        progress = self.streams.get(stream)
+        if progress is None:
+            for old in [k for k, p in self.streams.items() if p.arm == arm]:
+                self.close_stream(old)
+            progress = self.streams[stream] = StreamProgress(arm)
+        return progress
+
+    def close_stream(self, stream: str) -> SegmentRecord | None:
+        """A stream that ends (its arm is gone): its open segment closes as its plan is gone (``h_max``),
+        its unfinished episode is dropped; the record, if a segment was open."""
+        progress = self.streams.pop(stream, None)
+        if progress is None:
+            return None
+        self.retreat.segment = progress.segment
+        record = self._close_segment(SegmentEnd.H_MAX, progress.arm)
+        self.retreat.reset()
+        return record
+
+    def close_arm(self, arm: str) -> list[SegmentRecord]:
+        """Arm ``arm`` is gone: close its streams' open segments (the records of those that were open)."""
+        records = [self.close_stream(k) for k, p in list(self.streams.items()) if p.arm == arm]
+        return [r for r in records if r is not None]
 
     def snapshot(self) -> PolicySnapshot:
         """What an actor plans with: this policy's mean, the retreat's gradient field, the std now."""
@@ -447,7 +493,7 @@ class AdaptiveH:
         if cfg.sigma_final is not None:
             self.policy.explore((cfg.sigma + (cfg.sigma_final - cfg.sigma) * frac) * self.policy.half_range)
 
-    def _close_segment(self, reason: str) -> SegmentRecord | None:
+    def _close_segment(self, reason: str, arm: str = "") -> SegmentRecord | None:
         """Update the policy with the segment's gradients when ``reason`` closes it (``open``: nothing)."""
         states, grads = self.retreat.states, self.retreat.grads
         if reason == SegmentEnd.OPEN or not states:
@@ -473,6 +519,7 @@ class AdaptiveH:
             reason=reason,
             statistic=[float(x) for x in self.retreat.trace],
             threshold=float(self.retreat.threshold),
+            arm=arm,
         )
         self.log.segments.append(record)
         self.retreat.reset()
@@ -487,7 +534,7 @@ class AdaptiveH:
         self._obs = np.asarray(obs, float)
         self._ep_return, self._ep_len = 0.0, 0
 
-    def _finish_episode(self, info: dict) -> None:
+    def _finish_episode(self, info: dict, ret: float, length: int, arm: str = "") -> None:
         self._mature(everything=True)  # an episode's advantages never reach into the next one
         self.critic.end_episode()
         scalars = _info_scalars(info)
@@ -496,10 +543,11 @@ class AdaptiveH:
             EpisodeRecord(
                 episode=self.log.episode_count,
                 global_step=self.log.global_step,
-                ret=self._ep_return,
-                length=self._ep_len,
+                ret=ret,
+                length=length,
                 success=None if success is None else bool(success),
                 info=scalars,
+                arm=arm,
             )
         )
         self._obs = None
@@ -531,6 +579,10 @@ class AdaptiveH:
             "started_from": self.started_from,
             "schedule_offset": self.schedule_offset,
             "stream_marks": dict(self.stream_marks),
+            "streams": {
+                k: (p.arm, p.segment.states, p.segment.grads, p.segment.trace, p.ret, p.length)
+                for k, p in self.streams.items()
+            },
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -547,6 +599,10 @@ class AdaptiveH:
         self.started_from = state.get("started_from")
         self.schedule_offset = state.get("schedule_offset", 0)
         self.stream_marks = dict(state.get("stream_marks", {}))
+        self.streams = {
+            k: StreamProgress(arm, SegmentSamples(list(states), list(grads), list(trace)), ret, length)
+            for k, (arm, states, grads, trace, ret, length) in state.get("streams", {}).items()
+        }
         self._pending = deque([list(e) for e in state.get("pending", [])])
         self._matured = list(state.get("matured", []))
         if self.replay is not None and state.get("replay") is not None:

@@ -25,6 +25,7 @@ class EpisodeRecord:
     length: int
     success: bool | None = None
     info: dict[str, float] = field(default_factory=dict)
+    arm: str = ""  # the arm of a fleet that played it ("": the only one)
 
 
 @dataclass
@@ -37,6 +38,7 @@ class SegmentRecord:
     reason: str  # retreat | h_max | episode_end
     statistic: list[float] = field(default_factory=list)
     threshold: float = 0.0
+    arm: str = ""  # the arm of a fleet that played it ("": the only one)
 
 
 @dataclass

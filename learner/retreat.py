@@ -43,6 +43,7 @@ All inner products are exact: ``⟨Σ_a k(s_a,·)g_a, Σ_b k(s_b,·)g_b⟩_H = �
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 import numpy as np
@@ -50,6 +51,18 @@ import numpy as np
 from learner.dictionary import RKHSFunction
 from learner.kernels import GaussianKernel
 from learner.plan_tolerance import FixedTolerance, PlanTolerance
+
+
+@dataclass
+class SegmentSamples:
+    """One open segment's samples: its states, gradients and retreat statistics so far. A learner that
+    pools several arms keeps one per arm and sets it as the check's ``segment`` before each sample."""
+
+    states: list[np.ndarray] = field(default_factory=list)
+    grads: list[np.ndarray] = field(default_factory=list)
+    trace: list[float] = field(default_factory=list)
+    snapshot: tuple[np.ndarray, np.ndarray, float] | None = None  # ``smoothed``: G_0 at the opening
+
 
 RetreatMode = Literal["local", "plan", "smoothed", "literal", "off"]
 MODES: tuple[str, ...] = get_args(RetreatMode)
@@ -105,15 +118,23 @@ class RetreatCheck:
         # Compares a plan's predicted state with the reached one.
         self.plan_tolerance = plan_tolerance or FixedTolerance(kernel)
         self.field = RKHSFunction(kernel, 0, budget, ald_threshold)  # out_dim set on first push
-        self._snapshot: tuple[np.ndarray, np.ndarray, float] | None = None
-        self.states: list[np.ndarray] = []
-        self.grads: list[np.ndarray] = []
-        self.trace: list[float] = []
+        self.segment = SegmentSamples()
+
+    @property
+    def states(self) -> list[np.ndarray]:
+        return self.segment.states
+
+    @property
+    def grads(self) -> list[np.ndarray]:
+        return self.segment.grads
+
+    @property
+    def trace(self) -> list[float]:
+        return self.segment.trace
 
     def reset(self) -> None:
         """Open a new segment: the current gradient field becomes ``G_0``."""
-        self.states, self.grads, self.trace = [], [], []
-        self._snapshot = None
+        self.segment = SegmentSamples()
 
     def push(
         self,
@@ -167,11 +188,11 @@ class RetreatCheck:
             field.add(s, self.smoothing * g / norm)
 
     def _smoothed(self, s: np.ndarray, g: np.ndarray) -> float | None:
-        field = self.field
-        if self._snapshot is None:
-            self._snapshot = (field.dictionary.centers.copy(), field.weights.copy(), field.norm2())
+        field, segment = self.field, self.segment
+        if segment.snapshot is None:
+            segment.snapshot = (field.dictionary.centers.copy(), field.weights.copy(), field.norm2())
         self._update_field(g, s)
-        centers0, weights0, norm0 = self._snapshot
+        centers0, weights0, norm0 = segment.snapshot
         if norm0 <= 1e-300 or len(centers0) == 0:
             return None  # no gradient history yet: nothing to compare with
         cross = float(np.sum(self.kernel(centers0, field.dictionary.centers) * (weights0 @ field.weights.T)))
@@ -201,7 +222,7 @@ class RetreatCheck:
     def state_dict(self) -> dict:
         return {
             "field": self.field.state_dict(),
-            "snapshot": self._snapshot,
+            "snapshot": self.segment.snapshot,
             "states": self.states,
             "grads": self.grads,
             "trace": self.trace,
@@ -216,6 +237,6 @@ class RetreatCheck:
 
     def load_state_dict(self, state: dict) -> None:
         self.start_from(state)
-        self._snapshot = state["snapshot"]
-        self.states, self.grads = list(state["states"]), list(state["grads"])
-        self.trace = list(state["trace"])
+        self.segment = SegmentSamples(
+            list(state["states"]), list(state["grads"]), list(state["trace"]), state["snapshot"]
+        )

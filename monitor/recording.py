@@ -77,7 +77,10 @@ class Recorder:
         flush_s: float = 1.0,
         split_s: float = 900.0,
         key: bytes | None = None,
+        arms: tuple[str, ...] = (),
     ):
+        """``arms``: a fleet's arms, whose own topics are under ``adaptiveh/<robot>/<arm>/``: each arm's
+        channels are kept apart by their keys."""
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.parts: list[Path] = []
@@ -90,7 +93,8 @@ class Recorder:
         self._verifiers = KeyedVerifiers(key)  # per typed key, across parts
         self._other_keys: set[str] = set()  # keys outside the schema that have their own rejected channel
         self.derived = 0
-        self.exclude = tuple(f"{NAMESPACE}/{robot}/{t}" for t in exclude)
+        owners = [robot, *(f"{robot}/{arm}" for arm in arms)]
+        self.exclude = tuple(f"{NAMESPACE}/{owner}/{t}" for owner in owners for t in exclude)
         self.count = 0
         self._closed = False
         self._done = threading.Event()
@@ -101,13 +105,15 @@ class Recorder:
         # (``Topic.kept``), so nothing is lost while the recorder was away. Everything else (images,
         # a stranger's bytes on any key) through a plain one.
         kept = [t for t in m.TOPICS.values() if t.kept]
-        self._kept_keys = {t.key(robot) for t in kept}
+        kept_keys = [(t, t.key(robot)) for t in kept]
+        kept_keys += [(t, t.key(f"{robot}/{arm}")) for t in kept if not t.fleet for arm in arms]
+        self._kept_keys = {k for _, k in kept_keys}
         self._subs: list[Any] = []
         self.lost = 0  # messages it missed and could not get back (gone from the publisher's cache)
-        for topic in kept:
+        for topic, kept_key in kept_keys:
             sub = zenoh.ext.declare_advanced_subscriber(
                 session,
-                topic.key(robot),
+                kept_key,
                 self._on_sample,
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=topic.kept),
                 recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),

@@ -221,7 +221,7 @@ class ChunkStatus(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., chunk_seq: _Optional[int] = ..., executed: _Optional[int] = ..., dropped: _Optional[int] = ..., preempted_by: _Optional[int] = ..., done: _Optional[bool] = ..., session: _Optional[str] = ..., verdict: _Optional[_Union[ChunkStatus.Verdict, str]] = ..., chunk_stamp: _Optional[float] = ..., mac: _Optional[bytes] = ..., segment: _Optional[int] = ..., opened_by: _Optional[_Union[ActionChunk.Opening, str]] = ..., preempted_by_opening: _Optional[_Union[ActionChunk.Opening, str]] = ...) -> None: ...
 
 class RetreatEvent(_message.Message):
-    __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step", "mac")
+    __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step", "mac", "arm")
     class Reason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         REASON_UNSPECIFIED: _ClassVar[RetreatEvent.Reason]
@@ -241,6 +241,7 @@ class RetreatEvent(_message.Message):
     THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     GLOBAL_STEP_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    ARM_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     segment: int
@@ -250,7 +251,8 @@ class RetreatEvent(_message.Message):
     threshold: float
     global_step: int
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    arm: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ..., mac: _Optional[bytes] = ..., arm: _Optional[str] = ...) -> None: ...
 
 class SafetyEvent(_message.Message):
     __slots__ = ("seq", "stamp", "kind", "detail", "held", "mac")
@@ -413,7 +415,7 @@ class PolicySnapshot(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., version: _Optional[int] = ..., state_dim: _Optional[int] = ..., action_dim: _Optional[int] = ..., policy_centers: _Optional[_Iterable[float]] = ..., policy_weights: _Optional[_Iterable[float]] = ..., field_centers: _Optional[_Iterable[float]] = ..., field_weights: _Optional[_Iterable[float]] = ..., sigma: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
 
 class Transition(_message.Message):
-    __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise", "stream", "first_kept")
+    __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise", "stream", "first_kept", "arm")
     class SegmentEnd(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         SEGMENT_END_UNSPECIFIED: _ClassVar[Transition.SegmentEnd]
@@ -448,6 +450,7 @@ class Transition(_message.Message):
     NOISE_FIELD_NUMBER: _ClassVar[int]
     STREAM_FIELD_NUMBER: _ClassVar[int]
     FIRST_KEPT_FIELD_NUMBER: _ClassVar[int]
+    ARM_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     step: int
@@ -470,7 +473,8 @@ class Transition(_message.Message):
     noise: _containers.RepeatedScalarFieldContainer[float]
     stream: str
     first_kept: int
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ..., stream: _Optional[str] = ..., first_kept: _Optional[int] = ...) -> None: ...
+    arm: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ..., stream: _Optional[str] = ..., first_kept: _Optional[int] = ..., arm: _Optional[str] = ...) -> None: ...
 
 class TransitionAck(_message.Message):
     __slots__ = ("seq", "stamp", "stream", "learned", "saved", "learner", "mac")

@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
+from deploy.commands import (
+    add_arm_argument,
+    add_part_arguments,
+    add_token_argument,
+    arm_config,
+    operator_token,
+    setup_logging,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -14,6 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_part_arguments(p, "name, zenoh, robot, learner")
     add_token_argument(p)
+    add_arm_argument(p)
     p.add_argument(
         "--policy-from",
         default=None,
@@ -30,14 +38,16 @@ def run(args: argparse.Namespace) -> int:
     from deploy.config import load_stack_config
 
     setup_logging(args.log_level)
-    cfg = load_stack_config(args.config, learner={"policy_from": args.policy_from})
+    cfg = arm_config(load_stack_config(args.config, learner={"policy_from": args.policy_from}), args.arm)
     if cfg.learner.execution != "actor":
         logging.error(
             "learner.execution is %r: the learner drives the arm itself, no actor runs", cfg.learner.execution
         )
         return 2
     node = ActorNode(cfg, control_token=operator_token(args))
-    logging.info("actor '%s' up: %s policy at %.0f Hz", cfg.name, cfg.learner.algo, cfg.robot.control_rate_hz)
+    logging.info(
+        "actor '%s' up: %s policy at %.0f Hz", cfg.bus_key, cfg.learner.algo, cfg.robot.control_rate_hz
+    )
     run_until_stopped(node, args.duration)
     logging.info("actor stopped: %s", node.counts)
     if node.error:

@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
+from deploy.commands import (
+    add_arm_argument,
+    add_part_arguments,
+    add_token_argument,
+    arm_config,
+    operator_token,
+    setup_logging,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -13,6 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_part_arguments(p, "name, zenoh, robot")
     p.add_argument("--watch", default="learner", help="comma-separated peers whose absence holds the arm")
     add_token_argument(p)
+    add_arm_argument(p)
     p.set_defaults(func=run)
 
 
@@ -22,10 +30,10 @@ def run(args: argparse.Namespace) -> int:
     from deploy.robot_io_node import RobotIONode
 
     setup_logging(args.log_level)
-    cfg = load_stack_config(args.config)
+    cfg = arm_config(load_stack_config(args.config), args.arm)
     watch = tuple(p for p in args.watch.split(",") if p)
     node = RobotIONode(cfg, watch_peers=watch, control_token=operator_token(args))
     robot = cfg.robot
-    logging.info("robot-io '%s' up: backend %s at %.0f Hz", cfg.name, robot.backend, robot.control_rate_hz)
+    logging.info("robot-io '%s' up: backend %s at %.0f Hz", cfg.bus_key, robot.backend, robot.control_rate_hz)
     run_until_stopped(node, args.duration)
     return 0

@@ -39,6 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PATH",
         help="start the learner from this checkpoint (a file or run folder): learner.policy_from",
     )
+    p.add_argument(
+        "--arms",
+        default=None,
+        metavar="A,B",
+        help="fleet configs: run only these arms' parts (robot-io, actor, vision), as another machine that"
+        " joins the fleet through the routers does; 'none': the learner and monitor only",
+    )
     add_token_argument(p)  # default: a random token, printed (TOKEN_NOTE)
     p.add_argument("--summary", default="", help="also write the summary JSON here")
     p.add_argument("--log-level", default="INFO")
@@ -47,6 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bus.node import on_stop_signal
+    from deploy.config import ConfigError
     from deploy.run_report import summary_table
     from deploy.stack import Stack, check
 
@@ -57,7 +65,14 @@ def run(args: argparse.Namespace) -> int:
             print(line)
         return 0 if ok else 1
     given = operator_token(args)
-    stack = Stack(args.config, token=given or None, steps=args.steps, policy_from=args.policy_from)
+    arms = None if args.arms is None else [a for a in args.arms.split(",") if a and a != "none"]
+    try:
+        stack = Stack(
+            args.config, token=given or None, steps=args.steps, policy_from=args.policy_from, arms=arms
+        )
+    except ConfigError as exc:
+        logging.error("%s", exc)
+        return 2
     tell_token(stack.token, (args.token_file or f"${TOKEN_ENV}") if given else "")
     on_stop_signal(stack.request_stop, signal.SIGTERM, signal.SIGINT)
     try:
@@ -73,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     if args.summary:
         with open(args.summary, "w") as fh:
             fh.write(text)
-    return 0 if summary["exit_codes"].get("learner") == 0 and not summary["gave_up"] else 1
+    learner_ok = summary["exit_codes"].get("learner") == 0 or "learner" not in summary["exit_codes"]
+    return 0 if learner_ok and not summary["gave_up"] else 1
 
 
 def tell_token(token: str, source: str) -> None:
