@@ -43,6 +43,21 @@ def write_stack_config(
     return path, cfg
 
 
+def write_fleet_config(directory: Path, prefix: str, arms: int = 2, **learner: Any) -> tuple[Path, dict]:
+    """``configs/fleet.yaml`` made private to one test (as ``write_stack_config``): ``arms`` arms named
+    arm0, arm1, ... with seeds 0, 1, ...; no monitor (the monitor's own tests cover its fleet view)."""
+    cfg = compose_stack_yaml("configs/fleet.yaml")
+    cfg["name"] = unique_name(prefix)
+    cfg["zenoh"]["hub"] = free_endpoint()
+    cfg["learner"].update({"checkpoint_dir": str(directory / "learner"), **learner})
+    cfg["monitor"] = None
+    cfg["recording"]["dir"] = str(directory / "rec")
+    cfg["fleet"] = {"arms": [{"name": f"arm{i}", "seed": i} for i in range(arms)]}
+    path = directory / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path, cfg
+
+
 def run_up(path: Path, *args: str, timeout: float = 400) -> dict:
     """``adaptiveh up`` on ``path`` to its end (extra ``args`` on its command line); its summary."""
     out = path.parent / "summary.json"

@@ -123,6 +123,9 @@ def test_every_shipped_stack_config_loads(tmp_path, monkeypatch):
                 patch.chdir(tmp_path)
             cfg = load_stack_config(path)
         assert cfg.monitor is not None, path
+        if cfg.fleet is not None:  # simulated arms without cameras (a rendered camera each is too much CPU)
+            assert cfg.vision is None and cfg.robot.simulated, path
+            continue
         # every shipped stack, the rehearsal on franky-sim included, sees its target through vision
         assert cfg.vision is not None and cfg.learner.target_topic == "target", path
 

@@ -123,3 +123,51 @@ def test_a_plan_that_began_late_is_judged_from_the_state_its_first_action_met(tr
     np.testing.assert_allclose(plan.predicted[-1], rollout(actor.model, met, plan.actions))
     assert actor.statistic(1, plan.predicted[1], reached) == pytest.approx(1.0)
     assert not actor.retreats(actor.statistic(1, plan.predicted[1], reached))
+
+
+def test_pooled_arms_segments_and_episodes_stay_their_own_and_a_gone_arm_closes_its_open_segment():
+    """Two arms' ticks interleave at the learner (a fleet): each segment holds its own arm's samples,
+    each episode its own arm's return and length, and an arm that goes has its open segment closed as its
+    plan is gone (h_max), while the other's stays open."""
+    env = gym.make("NSCartPoleContinuous-v0")
+    agent = AdaptiveH(env, CONFIG, seed=0)
+    obs, _ = env.reset(seed=0)
+    ticks = [  # (arm, end, episode over, reward)
+        ("a", "open", False, 1.0),
+        ("b", "open", False, 10.0),
+        ("a", "open", False, 1.0),
+        ("b", "open", False, 10.0),
+        ("a", "retreat", False, 1.0),
+        ("b", "open", False, 10.0),
+        ("a", "episode_end", True, 1.0),
+        ("b", "open", False, 10.0),
+    ]
+    closed = []
+    for arm, end, over, reward in ticks:
+        raw = np.array([0.3])
+        nxt, _, _, _, _ = env.step(raw)
+        record = agent.learn_transition(
+            obs, raw, reward, nxt, False, over, {}, None, end, 0.9, stream=f"s-{arm}", arm=arm
+        )
+        closed += [record] if record is not None else []
+        obs = nxt
+    assert [(r.arm, r.reason, r.H) for r in closed] == [("a", "retreat", 3), ("a", "episode_end", 1)]
+    (episode,) = agent.log.episodes
+    assert (episode.arm, episode.length, episode.ret) == ("a", 4, 4.0)
+    assert len(agent.streams["s-b"].segment.states) == 4  # b's segment is still open, with b's ticks only
+    (gone,) = agent.close_arm("b")
+    assert (gone.arm, gone.reason, gone.H) == ("b", "h_max", 4)
+    assert "s-b" not in agent.streams and agent.log.global_step == 8
+
+
+def test_a_restarted_actors_new_stream_closes_its_old_streams_open_segment():
+    env = gym.make("NSCartPoleContinuous-v0")
+    agent = AdaptiveH(env, CONFIG, seed=0)
+    obs, _ = env.reset(seed=0)
+    for stream in ("old", "old", "new"):
+        raw = np.array([0.3])
+        nxt, reward, _, _, _ = env.step(raw)
+        agent.learn_transition(obs, raw, reward, nxt, False, False, {}, None, "open", 0.9, stream=stream)
+        obs = nxt
+    assert [(r.reason, r.H) for r in agent.log.segments] == [("h_max", 2)]
+    assert list(agent.streams) == ["new"]
