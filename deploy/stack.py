@@ -320,9 +320,10 @@ class Stack:
         except (AdaptiveHError, FileNotFoundError, ValueError) as exc:
             raise RuntimeError(str(exc)) from None
         zc = self.cfg.zenoh
-        if not (zc.connect or zc.listen) and zc.mode == "peer":
+        if not (zc.connect or zc.listen) and zc.mode == "peer" and self.serves_fleet:
             # The supervisor owns the loopback hub; the parts join through it and gossip makes a full mesh
-            # of peers (bus.transport). A hub already taken means another stack is running here.
+            # of peers (bus.transport). A hub already taken means another stack is running here. A
+            # supervisor of some arms only joins the hub of the one that runs the learner.
             zc = zc.model_copy(update={"listen": (zc.hub,)})
         try:
             session = open_session(zc)
