@@ -12,6 +12,11 @@ page asks for it once and keeps it out of the URL). An e-stop needs neither the 
 and a body without a readable command that mentions ``estop`` (not JSON, say) still stops the arm. The
 message carries no token: the bus signs it with the token's key (``bus.signing``), and the robot and
 learner obey only a signed, fresh request (an e-stop from anyone).
+
+A fleet (``fleet:`` in the stack config; ``MonitorServer``'s ``arms``) is listed arm by arm: each arm's
+mode, success, retreats and last plan (``FleetState``), with its own stop; the detail panels show the one
+the operator picks (``/api/state?arm=``). The E-STOP goes on the fleet's key, which every arm obeys; a
+request that names an ``arm`` goes on that arm's key alone (its stop, its release, a jog).
 """
 
 from __future__ import annotations
@@ -23,17 +28,18 @@ import secrets
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs
 
 from pydantic import Field
 
 from bus import messages as m
 from bus.learner_session import REFUSALS
 from bus.node import Node
-from bus.transport import Bus
+from bus.transport import Bus, Publisher
 from common.config import Section
 from common.throttle import Throttle
 from monitor.view_limits import ViewLimits
@@ -66,6 +72,23 @@ class Server(ThreadingHTTPServer):
     daemon_threads = True
 
 
+class JsonCache:
+    """``build()`` as JSON, built at most once per ``max_age_s``: every page polls it, and building it per
+    request let a few busy pages starve the operator's e-stop of the interpreter (measured)."""
+
+    def __init__(self, build: Callable[[], dict[str, Any]]) -> None:
+        self.build = build
+        self._lock = threading.Lock()
+        self._json, self._at = b"", -float("inf")
+
+    def get(self, max_age_s: float = SNAPSHOT_MAX_AGE_S) -> bytes:
+        with self._lock:
+            now = time.monotonic()
+            if now - self._at > max_age_s:
+                self._json, self._at = json.dumps(self.build()).encode(), now
+            return self._json
+
+
 class MonitorConfig(Section):
     """The ``monitor:`` section."""
 
@@ -83,15 +106,20 @@ class MonitorConfig(Section):
 class MonitorState:
     """Everything the page shows, updated from Zenoh callbacks, read under one lock. With the stack's key
     on ``bus`` only signed, new messages arrive here; ``limits`` keeps out-of-range ones off the plots.
-    Both kinds of refusal land in one counter (``counts["rejected"]``), never in the page's numbers."""
+    Both kinds of refusal land in one counter (``counts["rejected"]``), never in the page's numbers.
 
-    def __init__(self, bus: Bus, history: int = 600, limits: ViewLimits | None = None) -> None:
+    ``arm``: one arm of a fleet, read on its own keys; the fleet's topics (the learner's retreats and
+    telemetry, the arms' transitions) are read once by ``FleetState``, which hands each arm its own."""
+
+    def __init__(
+        self, bus: Bus, history: int = 600, limits: ViewLimits | None = None, arm: str | None = None
+    ) -> None:
         self.bus = bus
+        self.arm = arm
         self.limits = limits or ViewLimits()
         self.lock = threading.Lock()
-        self._json_lock = threading.Lock()
-        self._json, self._json_at = b"", -float("inf")
-        self.name = bus.robot
+        self._json = JsonCache(self.snapshot)
+        self.name = bus.robot if arm is None else f"{bus.fleet}/{arm}"
         self.segments: deque[dict[str, Any]] = deque(maxlen=history)
         self.statistic: deque[tuple[int, float, str]] = deque(maxlen=history * 5)
         self.threshold = 0.0
@@ -116,16 +144,21 @@ class MonitorState:
         }
         self.session = ""  # the learner session the arm obeys (from state)
         self._n_state = 0
+        self._state_at = 0.0  # monotonic, when the last state came: an arm gone silent shows it
         # (session, chunk seq) -> plan, the newest PLANS_KEPT in arrival order
         self.plans: dict[tuple[str, int], dict[str, Any]] = {}
-        bus.subscribe(m.STATE, self._state)
-        bus.subscribe(m.TARGET, self._target)
-        bus.subscribe(m.EVENTS_RETREAT, self._retreat, check=self.limits.problem)
-        bus.subscribe(m.CMD_CHUNK, self._chunk)
-        bus.subscribe(m.CHUNK_STATUS, self._status)
-        bus.subscribe(m.EVENTS_SAFETY, self._safety)
-        bus.subscribe(m.TELEMETRY_LEARNER, self._telemetry)
-        bus.subscribe(m.CAMERA_ANNOTATED, self._image)
+        self.episodes = 0  # an arm of a fleet: its episodes ended (from its transitions)
+        self._next_step: dict[str, int] = {}  # an arm: per actor stream, the next step not yet counted
+        self._open: dict[str, tuple[int, float]] = {}  # an arm: per stream, (open episode, its return so far)
+        bus.subscribe(m.STATE, self._state, arm=arm)
+        bus.subscribe(m.TARGET, self._target, arm=arm)
+        bus.subscribe(m.CMD_CHUNK, self._chunk, arm=arm)
+        bus.subscribe(m.CHUNK_STATUS, self._status, arm=arm)
+        bus.subscribe(m.EVENTS_SAFETY, self._safety, arm=arm)
+        bus.subscribe(m.CAMERA_ANNOTATED, self._image, arm=arm)
+        if arm is None:
+            bus.subscribe(m.EVENTS_RETREAT, self._retreat, check=self.limits.problem)
+            bus.subscribe(m.TELEMETRY_LEARNER, self._telemetry)
 
     def _state(self, s: m.RobotState) -> None:
         with self.lock:
@@ -140,6 +173,7 @@ class MonitorState:
                 "stamp": s.stamp,
             }
             self.session = s.session
+            self._state_at = time.monotonic()
             self._n_state += 1
             if self._n_state % 2 == 0:
                 self.ee.append([round(x, 4) for x in s.ee_pos])
@@ -244,33 +278,60 @@ class MonitorState:
                 "algo": t.algo,
                 "started_from": t.started_from,
             }
+            if self.arm is not None:
+                return  # the learner's episodes are every arm's: an arm's own come with its transitions
             if t.episode and (not self.returns or self.returns[-1]["episode"] != t.episode):
                 self.returns.append({"episode": t.episode, "ret": t.episode_return, "success": t.success})
 
+    def _transition(self, t: m.Transition) -> None:
+        """An arm's tick: its episode's return so far, and at the episode's end its return and success. A
+        step counted before (the actor sends again what the learner lacks) is not counted twice."""
+        with self.lock:
+            if t.step < self._next_step.get(t.stream, 0):
+                return
+            self._next_step[t.stream] = t.step + 1
+            episode, ret = self._open.get(t.stream, (t.episode, 0.0))
+            ret = (ret if episode == t.episode else 0.0) + t.reward
+            if not (t.terminated or t.truncated):
+                self._open[t.stream] = (t.episode, ret)
+                return
+            self._open.pop(t.stream, None)
+            self.episodes += 1
+            self.returns.append({"episode": self.episodes, "ret": round(ret, 4), "success": t.success})
+
     def _success(self) -> dict[str, Any]:
-        """The success rate over the last ``SUCCESS_WINDOW`` finished episodes, and the episode count.
-        Caller holds the lock."""
+        """The success rate over the last ``SUCCESS_WINDOW`` finished episodes, and the episode count (an
+        arm of a fleet: its own). Caller holds the lock."""
         recent = [bool(r["success"]) for r in list(self.returns)[-SUCCESS_WINDOW:]]
         rate = sum(recent) / len(recent) if recent else None
         return {
             "rate": rate,
             "of": len(recent),
             "window": SUCCESS_WINDOW,
-            "episodes": self.learner.get("episode", 0),
+            "episodes": self.learner.get("episode", 0) if self.arm is None else self.episodes,
         }
+
+    def summary(self) -> dict[str, Any]:
+        """The arm's row in the fleet's list: its mode (and how long ago it said so, by this clock: the
+        arm's may differ), success, retreats and last plan."""
+        with self.lock:
+            return {
+                "arm": self.arm,
+                "mode": self.robot.get("mode", ""),
+                "age_s": round(time.monotonic() - self._state_at, 1) if self.robot else None,
+                "success": self._success(),
+                "retreats": self.counts["retreats"],
+                "segments": self.counts["segments"],
+                "chunk": dict(self.current_chunk),
+            }
 
     def _image(self, a: m.AnnotatedImage) -> None:
         with self.lock:
             self.image, self.image_detected = a.jpeg, a.detected
 
     def snapshot_json(self, max_age_s: float = SNAPSHOT_MAX_AGE_S) -> bytes:
-        """The snapshot as JSON, built at most once per ``max_age_s``: every page polls it, and building
-        it per request let a few busy pages starve the operator's e-stop of the interpreter (measured)."""
-        with self._json_lock:
-            now = time.monotonic()
-            if now - self._json_at > max_age_s:
-                self._json, self._json_at = json.dumps(self.snapshot()).encode(), now
-            return self._json
+        """The snapshot as JSON, built at most once per ``max_age_s`` (``JsonCache``)."""
+        return self._json.get(max_age_s)
 
     def snapshot(self) -> dict[str, Any]:
         with self.lock:
@@ -300,17 +361,64 @@ class MonitorState:
             }
 
 
+class FleetState:
+    """The arms of a fleet, each a ``MonitorState`` on its own keys. The fleet's topics are read here once
+    and handed to the arm each names: retreats and transitions by their ``arm``, the learner's telemetry
+    to every arm (the detail view shows the learner too)."""
+
+    def __init__(self, bus: Bus, arms: Sequence[str], history: int, limits: ViewLimits | None) -> None:
+        self.arms = {arm: MonitorState(bus, history, limits, arm=arm) for arm in arms}
+        self._json = {arm: JsonCache(lambda arm=arm: self.snapshot(arm)) for arm in arms}
+        checked = limits or ViewLimits()
+        bus.subscribe(m.EVENTS_RETREAT, self._retreat, check=checked.problem)
+        bus.subscribe(m.TELEMETRY_LEARNER, self._telemetry)
+        bus.subscribe(m.TRANSITIONS, self._transition)
+
+    def _retreat(self, e: m.RetreatEvent) -> None:
+        if e.arm in self.arms:
+            self.arms[e.arm]._retreat(e)
+
+    def _transition(self, t: m.Transition) -> None:
+        if t.arm in self.arms:
+            self.arms[t.arm]._transition(t)
+
+    def _telemetry(self, t: m.LearnerTelemetry) -> None:
+        for state in self.arms.values():
+            state._telemetry(t)
+
+    def snapshot(self, arm: str) -> dict[str, Any]:
+        """Arm ``arm``'s detail, and the list of every arm."""
+        rows = [state.summary() for state in self.arms.values()]
+        return self.arms[arm].snapshot() | {"fleet": {"arm": arm, "arms": rows}}
+
+    def snapshot_json(self, arm: str, max_age_s: float = SNAPSHOT_MAX_AGE_S) -> bytes:
+        return self._json[arm].get(max_age_s)
+
+
 class MonitorServer(Node):
-    """HTTP server + Zenoh state on ``bus`` (closed with the server); ``token`` guards control requests."""
+    """HTTP server + Zenoh state on ``bus`` (closed with the server); ``token`` guards control requests.
+    ``arms``: the fleet's (``StackConfig.arm_names``); none, or the one arm "" of a plain stack: one arm on
+    the stack's keys. ``state`` is the one arm's, or the fleet's first arm's (what the page shows first)."""
 
     def __init__(
-        self, bus: Bus, config: MonitorConfig, token: str | None = None, limits: ViewLimits | None = None
+        self,
+        bus: Bus,
+        config: MonitorConfig,
+        token: str | None = None,
+        limits: ViewLimits | None = None,
+        arms: Sequence[str] = (),
     ) -> None:
         super().__init__(bus.robot, bus=bus)
         self.config = config
         self.token = token or secrets.token_urlsafe(12)
-        self.state = MonitorState(bus, config.history, limits)
-        self._pub_control = bus.publisher(m.CONTROL)
+        named = [arm for arm in arms if arm]
+        self.fleet = FleetState(bus, named, config.history, limits) if named else None
+        self.state = (
+            MonitorState(bus, config.history, limits) if self.fleet is None else self.fleet.arms[named[0]]
+        )
+        # By the key each goes on: "" the stack's (a fleet's: every arm and the learner obey it), an arm's.
+        self._pubs: dict[str, Publisher[m.Control]] = {"": bus.publisher(m.CONTROL)}
+        self._pubs.update({arm: bus.publisher(m.CONTROL, arm=arm) for arm in named})
         self.controls: deque[str] = deque(maxlen=256)  # the newest requests obeyed (a flood stays small)
         self._reports = Throttle("like it")
         server = self
@@ -330,14 +438,17 @@ class MonitorServer(Node):
                 self.wfile.write(body)
 
             def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
-                path = self.path.split("?")[0]
+                path, _, query = self.path.partition("?")
+                state = server.arm_state(parse_qs(query).get("arm", [""])[0])
                 if path in ("/", "/index.html"):
                     self._send(200, (STATIC / "index.html").read_bytes(), "text/html; charset=utf-8")
+                elif path in ("/api/state", "/api/image.jpg") and state is None:
+                    self._send(404, b'{"ok": false, "error": "no such arm"}', "application/json")
                 elif path == "/api/state":
-                    self._send(200, server.state.snapshot_json(), "application/json")
+                    self._send(200, server.state_json(state), "application/json")
                 elif path == "/api/image.jpg":
-                    with server.state.lock:
-                        img = server.state.image
+                    with state.lock:
+                        img = state.image
                     self._send(200 if img else 204, img, "image/jpeg")
                 else:
                     self._send(404, b"not found", "text/plain")
@@ -363,6 +474,19 @@ class MonitorServer(Node):
 
         self.httpd = Server((config.host, config.port), Handler)
 
+    def arm_state(self, arm: str) -> MonitorState | None:
+        """What the page asked for: the fleet's arm ``arm`` (its first for ""), None for an arm the fleet
+        lacks; a stack of one arm has one."""
+        if self.fleet is None or not arm:
+            return self.state
+        return self.fleet.arms.get(arm)
+
+    def state_json(self, state: MonitorState) -> bytes:
+        """``state``'s snapshot; in a fleet with the list of every arm."""
+        if self.fleet is None or state.arm is None:
+            return state.snapshot_json()
+        return self.fleet.snapshot_json(state.arm)
+
     @property
     def url(self) -> str:
         host, port = self.httpd.server_address[:2]
@@ -387,7 +511,7 @@ class MonitorServer(Node):
             return 400, {"ok": False, "error": "the body must be a JSON object"}
         try:
             name = "" if command is None else str(command)
-            return self.control(name, body.get("jog"), header_token or body.get("token", ""))
+            return self.control(name, body.get("jog"), header_token or body.get("token", ""), body.get("arm"))
         except (ValueError, TypeError) as exc:
             return 400, _error(exc)
 
@@ -397,18 +521,33 @@ class MonitorServer(Node):
         if line is not None:
             log.warning("%s", line)
 
-    def estop(self) -> tuple[int, dict[str, Any]]:
-        """Publish an e-stop: no token, nothing else asked (robot-io obeys one from anyone)."""
-        self._pub_control(m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
-        self.controls.append("estop")
-        self._report("estop", "e-stop published at the page's request")
-        return 200, {"ok": True, "command": "estop", "at": time.time()}
+    def _target(self, arm: Any) -> str | None:
+        """The key a request naming ``arm`` goes on (a key of ``_pubs``): a fleet's arm alone, or "" when
+        it names none (or the stack has one arm); None for an arm the fleet lacks."""
+        if self.fleet is None or arm is None or arm == "":
+            return ""
+        return arm if isinstance(arm, str) and arm in self._pubs else None
 
-    def control(self, command: str, jog: Any, token: str) -> tuple[int, dict[str, Any]]:
+    def _sent(self, command: str, to: str) -> tuple[int, dict[str, Any]]:
+        """Note a published request; the reply says, in a fleet, which arms it went to."""
+        self.controls.append(f"{command} {to}".strip())
+        reply = {"ok": True, "command": command, "at": time.time()}
+        return 200, reply if self.fleet is None else reply | {"to": to or "all arms"}
+
+    def estop(self, arm: Any = None) -> tuple[int, dict[str, Any]]:
+        """Publish an e-stop: no token, nothing else asked (robot-io obeys one from anyone). ``arm``: that
+        arm of a fleet alone; one the fleet lacks stops every arm (a stop by mistake is safe, one ignored
+        is not)."""
+        to = self._target(arm) or ""
+        self._pubs[to](m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
+        self._report("estop", f"e-stop{' of ' + to if to else ''} published at the page's request")
+        return self._sent("estop", to)
+
+    def control(self, command: str, jog: Any, token: str, arm: Any = None) -> tuple[int, dict[str, Any]]:
         """Validate and publish one operator request; returns (HTTP code, reply). An e-stop needs
-        no token and ignores the rest of the request."""
+        no token and ignores the rest of the request. ``arm``: to that arm of a fleet alone (``_target``)."""
         if command.strip().lower() == "estop":
-            return self.estop()
+            return self.estop(arm)
         if not secrets.compare_digest(str(token).encode(), self.token.encode()):  # str: ASCII only
             self._report("token", f"control {command[:40]!r} refused: wrong or missing token")
             return 403, {"ok": False, "error": "wrong or missing token"}
@@ -419,9 +558,12 @@ class MonitorServer(Node):
         vec = [0.0, 0.0, 0.0] if jog is None else [float(x) for x in jog]
         if len(vec) != 3 or not all(math.isfinite(x) for x in vec):
             raise ValueError("jog must have 3 finite values")
-        self._pub_control(m.Control(command=value, jog=vec))  # signed by the bus with the token's key
-        self.controls.append(command)
-        return 200, {"ok": True, "command": command, "at": time.time()}
+        to = self._target(arm)
+        if to is None:
+            arms = list(self._pubs)[1:]
+            return 400, {"ok": False, "error": f"no arm {str(arm)[:40]!r} in the fleet (arms: {arms})"}
+        self._pubs[to](m.Control(command=value, jog=vec))  # signed by the bus with the token's key
+        return self._sent(command, to)
 
     def workers(self) -> dict[str, Callable[[], None]]:
         return {"monitor-http": self.httpd.serve_forever}
