@@ -560,11 +560,12 @@ class Bus:
         """Declare this process's liveliness token ``adaptiveh/<robot>/alive/<name>``."""
         return self.declare(lambda s: s.liveliness().declare_token(self.key(f"{messages.LIVELINESS}/{name}")))
 
-    def alive_now(self, name: str, timeout: float = 1.0) -> bool:
-        """Whether the token ``alive/<name>`` exists now, asked of the network: a subscriber's view
-        (``watch_alive``) can lag a request that reached this session first. ConnectionError when the
-        query cannot be made."""
-        key = self.key(f"{messages.LIVELINESS}/{name}")
+    def alive_now(self, name: str, timeout: float = 1.0, fleet: bool = False) -> bool:
+        """Whether the token ``alive/<name>`` (``fleet``: the fleet's, e.g. the learner's) exists now, asked
+        of the network: a subscriber's view (``watch_alive``) can lag a request that reached this session
+        first. ConnectionError when the query cannot be made."""
+        owner = self.fleet if fleet else self.robot
+        key = messages.key(owner, f"{messages.LIVELINESS}/{name}")
         try:
             return any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=timeout))
         except zenoh.ZError as exc:  # e.g. the session is closing

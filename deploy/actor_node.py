@@ -37,6 +37,7 @@ from learner.segments import SegmentEnd
 from learner.snapshot import PolicySnapshot, SnapshotError
 
 log = logging.getLogger(__name__)
+JOIN_WAIT_S = 2.0  # an arm joining a running learner waits this long at most for its policy
 
 
 class ActorNode(Node):
@@ -128,7 +129,7 @@ class ActorNode(Node):
 
     def _act(self) -> None:
         try:
-            self._await_handoff()
+            self._await_policy()
             while not self.stopping:
                 self._episode()
         except LinkStopped:
@@ -140,23 +141,35 @@ class ActorNode(Node):
         finally:
             self._write_counts()
 
-    def _await_handoff(self) -> None:
-        """With ``learner.policy_from`` the arm plays the handed-off policy from its first plan: nothing
-        moves (no reset, no plan) until the learner's first snapshot is here."""
-        if self.handoff is None:
-            return
+    def _await_policy(self) -> None:
+        """The first plan comes from the learner's policy when there is one to have: with
+        ``learner.policy_from`` nothing moves (no reset, no plan) until the learner's first snapshot is
+        here; else, with a learner up (an arm that joins a running fleet), the first plan waits for the
+        snapshot the learner sends a joining actor, at most ``JOIN_WAIT_S``."""
         start = told = time.monotonic()
-        while not self.stopping:
-            with self._lock:
-                if self._offered is not None or self.actor.version >= 0:
-                    return
+        if self.handoff is None and not self._learner_up():
+            return
+        while not self.stopping and not self._holds_snapshot():
             now = time.monotonic()
+            if self.handoff is None and now - start >= JOIN_WAIT_S:
+                log.warning("no policy snapshot %.0f s after joining: an empty policy acts", now - start)
+                return
             if now - told >= 5.0:
                 log.warning(
                     "no plan yet: waited %.0f s for the handed-off policy of %s", now - start, self.handoff
                 )
                 told = now
-            time.sleep(0.05)
+            time.sleep(0.02)
+
+    def _learner_up(self) -> bool:
+        try:
+            return self.bus.alive_now("learner", timeout=1.0, fleet=True)
+        except ConnectionError:
+            return False
+
+    def _holds_snapshot(self) -> bool:
+        with self._lock:
+            return self._offered is not None or self.actor.version >= 0
 
     def _episode(self) -> None:
         self.loop.reset(seed=self._episode_seed)

@@ -211,18 +211,18 @@ class LearnerNode(Node):
                 progress(self)
 
     def _arms_come_and_go(self) -> None:
-        """An arm's actor that comes gets the policy at once (a subscriber has no history); one that goes
-        has its open segment closed, and the others go on untouched."""
+        """An arm's actor that comes gets the policy at once (a subscriber has no history), so its first
+        plan is the newest policy's; one that goes has its open segment closed, and the others go on
+        untouched."""
         while True:
             try:
                 arm, alive = self._arm_changes.get_nowait()
             except queue.Empty:
                 return
-            if alive:
+            if alive:  # the policy as it is, even an empty one: the actor waits for it before it plans
                 self.arms_seen[arm] = self.arms_seen.get(arm, 0) + 1
                 log.info("arm %r: its actor is up", arm)
-                if self._holds_policy():
-                    self._publish_snapshot()
+                self._publish_snapshot()
             else:
                 closed = self.agent.close_arm(arm)
                 log.warning("arm %r: its actor is gone (%d open segment closed)", arm, len(closed))

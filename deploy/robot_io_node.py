@@ -126,9 +126,12 @@ class RobotIONode(Node):
         self.ticks = 0
         # Judged here, not by the bus: a forged chunk gets its verdict, an e-stop is obeyed from anyone.
         self.bus.subscribe(m.CMD_CHUNK, self._on_chunk, on_bad=self._on_bad, verify=False)
-        self.bus.subscribe(m.CONTROL, self._on_control, on_bad=self._on_bad, verify=False)
-        if self.bus.fleet != self.bus.robot:  # an arm of a fleet also obeys the fleet's (E-STOP all)
-            self.bus.subscribe(m.FLEET_CONTROL, self._on_control, on_bad=self._on_bad, verify=False)
+        arm = settings.arm or ""
+        self.bus.subscribe(m.CONTROL, lambda c: self._on_control(c, arm), on_bad=self._on_bad, verify=False)
+        if arm:  # an arm of a fleet also obeys the fleet's (E-STOP all)
+            self.bus.subscribe(
+                m.FLEET_CONTROL, lambda c: self._on_control(c, ""), on_bad=self._on_bad, verify=False
+            )
         self.bus.queryable(m.RESET, self._on_reset)
         self.bus.watch_alive(self._on_alive)
         self.bus.watch_alive(self.controller.learner_alive, below=SESSIONS)
@@ -192,11 +195,15 @@ class RobotIONode(Node):
             )
         )
 
-    def _on_control(self, msg: m.Control) -> None:
+    def _on_control(self, msg: m.Control, key_arm: str) -> None:
+        """An operator's command that came on the control key of ``key_arm`` ("": the fleet's, or a stack's
+        only arm's)."""
         command = m.label(msg, "command")
         # An e-stop is always obeyed; everything else needs the operator token when one is set.
         if command != "estop" and self.mac_key is not None:
             why = "not signed with the stack's key" if not authentic(msg, self.mac_key) else ""
+            if not why and msg.arm != key_arm:
+                why = f"signed for arm {msg.arm!r}, come on {key_arm or 'the fleet'!r}'s key (a replay)"
             if not why and not self._fresh_control(msg.stamp):
                 why = "not newer than the last one obeyed (a replay)"
             if why:

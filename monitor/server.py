@@ -539,7 +539,7 @@ class MonitorServer(Node):
         arm of a fleet alone; one the fleet lacks stops every arm (a stop by mistake is safe, one ignored
         is not)."""
         to = self._target(arm) or ""
-        self._pubs[to](m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0]))
+        self._pubs[to](m.Control(command=m.Control.ESTOP, jog=[0.0, 0.0, 0.0], arm=to))
         self._report("estop", f"e-stop{' of ' + to if to else ''} published at the page's request")
         return self._sent("estop", to)
 
@@ -562,7 +562,7 @@ class MonitorServer(Node):
         if to is None:
             arms = list(self._pubs)[1:]
             return 400, {"ok": False, "error": f"no arm {str(arm)[:40]!r} in the fleet (arms: {arms})"}
-        self._pubs[to](m.Control(command=value, jog=vec))  # signed by the bus with the token's key
+        self._pubs[to](m.Control(command=value, jog=vec, arm=to))  # signed by the bus with the token's key
         return self._sent(command, to)
 
     def workers(self) -> dict[str, Callable[[], None]]:

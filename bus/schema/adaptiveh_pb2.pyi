@@ -331,7 +331,7 @@ class LearnerTelemetry(_message.Message):
     def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., global_step: _Optional[int] = ..., episode: _Optional[int] = ..., episode_return: _Optional[float] = ..., success: _Optional[bool] = ..., paused: _Optional[bool] = ..., algo: _Optional[str] = ..., mac: _Optional[bytes] = ..., started_from: _Optional[str] = ...) -> None: ...
 
 class Control(_message.Message):
-    __slots__ = ("seq", "stamp", "command", "jog", "mac")
+    __slots__ = ("seq", "stamp", "command", "jog", "mac", "arm")
     class Command(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         COMMAND_UNSPECIFIED: _ClassVar[Control.Command]
@@ -351,12 +351,14 @@ class Control(_message.Message):
     COMMAND_FIELD_NUMBER: _ClassVar[int]
     JOG_FIELD_NUMBER: _ClassVar[int]
     MAC_FIELD_NUMBER: _ClassVar[int]
+    ARM_FIELD_NUMBER: _ClassVar[int]
     seq: int
     stamp: float
     command: Control.Command
     jog: _containers.RepeatedScalarFieldContainer[float]
     mac: bytes
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ...) -> None: ...
+    arm: str
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., command: _Optional[_Union[Control.Command, str]] = ..., jog: _Optional[_Iterable[float]] = ..., mac: _Optional[bytes] = ..., arm: _Optional[str] = ...) -> None: ...
 
 class ResetRequest(_message.Message):
     __slots__ = ("seq", "stamp", "seed", "session", "mac", "next_chunk")

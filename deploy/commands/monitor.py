@@ -51,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     # With the stack's key the page and the live view believe only what the stack signed; the view
     # limits keep out-of-range values off the plots.
     limits = cfg.view_limits()
-    server = MonitorServer(bus, mcfg, token or None, limits)  # else random: its controls are not the stack's
+    # A token given, else a random one (its controls are not the stack's); a fleet's arms listed.
+    server = MonitorServer(bus, mcfg, token or None, limits, arms=cfg.arm_names)
     setup = SceneSetup.from_vision(cfg.vision)
     live = start_live(
         bus.session,

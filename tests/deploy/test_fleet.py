@@ -4,7 +4,8 @@ Each arm's robot-io and actor run as processes; the learner learns from every ar
 policy to all. What is checked: two arms feed one learner and both play plans from its snapshots, and a
 learner killed mid-run and restarted loses no transition of either arm (``adaptiveh up``); an arm that
 joins late plays its first plan from the newest snapshot; an arm that dies has its open segment closed
-and the other goes on; an arm's own stop stops it alone, and the fleet's E-STOP stops both.
+and the other goes on; an arm's own stop stops it alone, the fleet's E-STOP stops both, and a control
+signed for one arm is refused on another's key.
 """
 
 from __future__ import annotations
@@ -138,13 +139,20 @@ def test_a_late_arm_plays_the_newest_snapshot_a_dead_arm_leaves_the_other_going_
                 op.wait(lambda: len(op.of_arm("arm0")) > had + 60, 30, "arm0 acting on")
                 wait_until(lambda: stream1 not in _streams(ckpt), 30, "arm1's open segment closed")
                 # arm1's own stop stops it alone; the fleet's E-STOP stops every arm.
-                stop = m.Control(command=m.enum(m.Control, "command", "estop"))
+                stop = m.Control(command=m.Control.ESTOP, jog=[0.0] * 3, arm="arm1")
                 op.bus.publisher(m.CONTROL, arm="arm1")(stop)
                 op.wait(lambda: op.modes.get("arm1") == "estop", 10, "arm1 e-stopped")
                 time.sleep(0.5)
                 assert op.modes.get("arm0") == "running"
-                op.bus.publisher(m.CONTROL)(m.Control(command=m.enum(m.Control, "command", "estop")))
+                op.bus.publisher(m.CONTROL)(m.Control(command=m.Control.ESTOP, jog=[0.0] * 3))
                 op.wait(lambda: op.modes.get("arm0") == "estop", 10, "arm0 e-stopped by E-STOP all")
+                # A release signed for arm1, put on arm0's key (a replay), is refused; arm0's own is obeyed.
+                release = op.bus.publisher(m.CONTROL, arm="arm0")
+                release(m.Control(command=m.Control.RELEASE, jog=[0.0] * 3, arm="arm1"))
+                time.sleep(1.0)
+                assert op.modes.get("arm0") == "estop"
+                release(m.Control(command=m.Control.RELEASE, jog=[0.0] * 3, arm="arm0"))
+                op.wait(lambda: op.modes.get("arm0") != "estop", 10, "arm0 released")
         op.bus.close()
 
 
