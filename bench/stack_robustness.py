@@ -82,7 +82,9 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 # the sim camera it had before, PyBullet's TinyRenderer at 320x240 and 15 Hz. own_kernel (issue #33): the
 # shipped agent with the plan kernel the stack had before the default tolerance replaced it (0.083 on the
 # relative coordinates, fixed). corrected_model (issue #33): the shipped agent with its plan model
-# corrected online by the actor (``plan_model: corrected``, learner/plan_model.py).
+# corrected online by the actor (``plan_model: corrected``, learner/plan_model.py). refactor (issue #46): the
+# shipped agent after acting became one segment loop and one robot link (learner/acting.py,
+# deploy/robot_link.py) and the learner took pooled arms' streams apart (#47), the rows before being older.
 VARIANTS = (
     "",
     "old_agent",
@@ -95,6 +97,7 @@ VARIANTS = (
     "tiny_camera",
     "own_kernel",
     "corrected_model",
+    "refactor",
 )
 TINY_CAMERA = {
     "rate_hz": 15.0,
@@ -114,7 +117,7 @@ def apply_variant(variant: str, base: dict[str, Any]) -> None:
 
 
 def variant_agent(variant: str, agent: dict[str, Any]) -> dict[str, Any]:
-    if variant in ("", "again", "ik_box", "tiny_camera"):
+    if variant in ("", "again", "ik_box", "tiny_camera", "refactor"):
         return agent
     if variant == "own_kernel":
         return {**agent, "plan_kernel_scale": OWN_KERNEL, "plan_tolerance": "fixed"}
