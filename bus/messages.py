@@ -45,6 +45,7 @@ from bus.schema.adaptiveh_pb2 import (
 )
 from common.errors import AdaptiveHError
 
+SegmentEnd = pb.SegmentEnd  # how a segment stands (Transition.end, RetreatEvent.reason): one vocabulary
 Rejected = pb.Rejected  # recordings only: bytes that did not decode as their key's type
 NAMESPACE = "adaptiveh"
 LIVELINESS = "alive"

@@ -21,7 +21,7 @@ it, the fix's age), ``observation.learner`` (the learner's 15 values, exactly), 
 step played, m per period; zeros on a hold), ``observation.images.camera`` (raw ``camera/frame`` when
 recorded, else the operator's annotated JPEG), ``next.reward``, ``next.done``, ``next.success``, the task
 text; ``segment.index``, ``segment.end`` (open, retreat, h_max, episode_end: the schema's
-``Transition.SegmentEnd``, which spells ``learner.segments.SegmentEnd``), ``retreat.statistic`` with
+``SegmentEnd`` of the schema, which spells ``learner.segments.SegmentEnd``), ``retreat.statistic`` with
 ``retreat.evaluated``, ``plan.dropped`` (planned actions a newer chunk preempted, reported in
 ``cmd/status`` since the previous frame), ``observation.camera_age``, and ``robot.tick``,
 ``robot.stamp_ns`` (the frame's state in the MCAP: tick, publish time) and ``robot.published``.

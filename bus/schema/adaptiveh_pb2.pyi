@@ -7,6 +7,19 @@ from collections.abc import Iterable as _Iterable, Mapping as _Mapping
 from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
+
+class SegmentEnd(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    SEGMENT_END_UNSPECIFIED: _ClassVar[SegmentEnd]
+    RETREAT: _ClassVar[SegmentEnd]
+    H_MAX: _ClassVar[SegmentEnd]
+    EPISODE_END: _ClassVar[SegmentEnd]
+    OPEN: _ClassVar[SegmentEnd]
+SEGMENT_END_UNSPECIFIED: SegmentEnd
+RETREAT: SegmentEnd
+H_MAX: SegmentEnd
+EPISODE_END: SegmentEnd
+OPEN: SegmentEnd
 LENGTH_FIELD_NUMBER: _ClassVar[int]
 length: _descriptor.FieldDescriptor
 LENGTH_MULTIPLE_FIELD_NUMBER: _ClassVar[int]
@@ -222,16 +235,6 @@ class ChunkStatus(_message.Message):
 
 class RetreatEvent(_message.Message):
     __slots__ = ("seq", "stamp", "segment", "H", "reason", "statistic", "threshold", "global_step", "mac", "arm")
-    class Reason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
-        __slots__ = ()
-        REASON_UNSPECIFIED: _ClassVar[RetreatEvent.Reason]
-        RETREAT: _ClassVar[RetreatEvent.Reason]
-        H_MAX: _ClassVar[RetreatEvent.Reason]
-        EPISODE_END: _ClassVar[RetreatEvent.Reason]
-    REASON_UNSPECIFIED: RetreatEvent.Reason
-    RETREAT: RetreatEvent.Reason
-    H_MAX: RetreatEvent.Reason
-    EPISODE_END: RetreatEvent.Reason
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     SEGMENT_FIELD_NUMBER: _ClassVar[int]
@@ -246,13 +249,13 @@ class RetreatEvent(_message.Message):
     stamp: float
     segment: int
     H: int
-    reason: RetreatEvent.Reason
+    reason: SegmentEnd
     statistic: _containers.RepeatedScalarFieldContainer[float]
     threshold: float
     global_step: int
     mac: bytes
     arm: str
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[RetreatEvent.Reason, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ..., mac: _Optional[bytes] = ..., arm: _Optional[str] = ...) -> None: ...
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., segment: _Optional[int] = ..., H: _Optional[int] = ..., reason: _Optional[_Union[SegmentEnd, str]] = ..., statistic: _Optional[_Iterable[float]] = ..., threshold: _Optional[float] = ..., global_step: _Optional[int] = ..., mac: _Optional[bytes] = ..., arm: _Optional[str] = ...) -> None: ...
 
 class SafetyEvent(_message.Message):
     __slots__ = ("seq", "stamp", "kind", "detail", "held", "mac")
@@ -418,18 +421,6 @@ class PolicySnapshot(_message.Message):
 
 class Transition(_message.Message):
     __slots__ = ("seq", "stamp", "step", "episode", "segment", "obs", "raw_action", "reward", "next_obs", "terminated", "truncated", "success", "distance", "predicted", "end", "policy_version", "statistic", "target_age", "mac", "noise", "stream", "first_kept", "arm")
-    class SegmentEnd(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
-        __slots__ = ()
-        SEGMENT_END_UNSPECIFIED: _ClassVar[Transition.SegmentEnd]
-        OPEN: _ClassVar[Transition.SegmentEnd]
-        RETREAT: _ClassVar[Transition.SegmentEnd]
-        H_MAX: _ClassVar[Transition.SegmentEnd]
-        EPISODE_END: _ClassVar[Transition.SegmentEnd]
-    SEGMENT_END_UNSPECIFIED: Transition.SegmentEnd
-    OPEN: Transition.SegmentEnd
-    RETREAT: Transition.SegmentEnd
-    H_MAX: Transition.SegmentEnd
-    EPISODE_END: Transition.SegmentEnd
     SEQ_FIELD_NUMBER: _ClassVar[int]
     STAMP_FIELD_NUMBER: _ClassVar[int]
     STEP_FIELD_NUMBER: _ClassVar[int]
@@ -467,7 +458,7 @@ class Transition(_message.Message):
     success: bool
     distance: float
     predicted: _containers.RepeatedScalarFieldContainer[float]
-    end: Transition.SegmentEnd
+    end: SegmentEnd
     policy_version: int
     statistic: float
     target_age: float
@@ -476,7 +467,7 @@ class Transition(_message.Message):
     stream: str
     first_kept: int
     arm: str
-    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[Transition.SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ..., stream: _Optional[str] = ..., first_kept: _Optional[int] = ..., arm: _Optional[str] = ...) -> None: ...
+    def __init__(self, seq: _Optional[int] = ..., stamp: _Optional[float] = ..., step: _Optional[int] = ..., episode: _Optional[int] = ..., segment: _Optional[int] = ..., obs: _Optional[_Iterable[float]] = ..., raw_action: _Optional[_Iterable[float]] = ..., reward: _Optional[float] = ..., next_obs: _Optional[_Iterable[float]] = ..., terminated: _Optional[bool] = ..., truncated: _Optional[bool] = ..., success: _Optional[bool] = ..., distance: _Optional[float] = ..., predicted: _Optional[_Iterable[float]] = ..., end: _Optional[_Union[SegmentEnd, str]] = ..., policy_version: _Optional[int] = ..., statistic: _Optional[float] = ..., target_age: _Optional[float] = ..., mac: _Optional[bytes] = ..., noise: _Optional[_Iterable[float]] = ..., stream: _Optional[str] = ..., first_kept: _Optional[int] = ..., arm: _Optional[str] = ...) -> None: ...
 
 class TransitionAck(_message.Message):
     __slots__ = ("seq", "stamp", "stream", "learned", "saved", "learner", "mac")

@@ -43,7 +43,7 @@ SAMPLES = [
         preempted_by_opening=m.ActionChunk.RETREAT,
     ),
     m.RetreatEvent(
-        segment=1, H=12, reason=m.RetreatEvent.RETREAT, statistic=[0.5, -0.1], threshold=0.01, global_step=99
+        segment=1, H=12, reason=m.SegmentEnd.RETREAT, statistic=[0.5, -0.1], threshold=0.01, global_step=99
     ),
     m.SafetyEvent(kind=m.SafetyEvent.WATCHDOG, detail="no command", held=True),
     m.LearnerTelemetry(global_step=10, episode=1, episode_return=-3.5, algo="adaptiveh"),
@@ -81,7 +81,7 @@ SAMPLES = [
         reward=-0.5,
         next_obs=[0.2, 0.2],
         predicted=[0.21, 0.2],
-        end=m.Transition.RETREAT,
+        end=m.SegmentEnd.RETREAT,
         policy_version=40,
         statistic=0.2,
         target_age=0.12,

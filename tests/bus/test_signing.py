@@ -11,7 +11,7 @@ KEY = mac_key("operator")
 
 
 def _event(segment: int, stamp: float) -> m.RetreatEvent:
-    e = m.RetreatEvent(segment=segment, H=3, reason=m.RetreatEvent.RETREAT, stamp=stamp)
+    e = m.RetreatEvent(segment=segment, H=3, reason=m.SegmentEnd.RETREAT, stamp=stamp)
     sign(e, KEY)
     return e
 
@@ -27,7 +27,7 @@ def test_a_verifier_believes_a_signed_event_once():
 
 @pytest.mark.parametrize("key", [None, mac_key("another stack")])
 def test_a_verifier_refuses_unsigned_and_foreign_events(key):
-    e = m.RetreatEvent(segment=1, H=3, reason=m.RetreatEvent.RETREAT, stamp=10.0)
+    e = m.RetreatEvent(segment=1, H=3, reason=m.SegmentEnd.RETREAT, stamp=10.0)
     if key is not None:
         sign(e, key)
     with pytest.raises(ForgedMessage, match="events/retreat: not signed") as exc:
@@ -68,7 +68,7 @@ def test_says_estop_reads_a_stop_request_whatever_else_is_wrong(data, stops):
 
 def test_a_stamp_foxglove_cannot_show_is_refused_on_decode():
     for stamp in (-1.0, 2.0**32, 1e76):
-        data = m.RetreatEvent(H=1, reason=m.RetreatEvent.RETREAT, stamp=stamp).SerializeToString()
+        data = m.RetreatEvent(H=1, reason=m.SegmentEnd.RETREAT, stamp=stamp).SerializeToString()
         with pytest.raises(m.MessageError, match="RetreatEvent.stamp"):
             m.decode(data, m.RetreatEvent)
 

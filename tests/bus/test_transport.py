@@ -241,13 +241,13 @@ def test_with_the_stacks_key_only_signed_new_events_arrive_and_floods_log_a_line
         reader.subscribe(m.EVENTS_RETREAT, got.append)
         pub = part.publisher(m.EVENTS_RETREAT)
         time.sleep(0.3)
-        genuine = m.RetreatEvent(segment=1, H=4, reason=m.RetreatEvent.RETREAT)
+        genuine = m.RetreatEvent(segment=1, H=4, reason=m.SegmentEnd.RETREAT)
         pub.put(genuine)
         wait_until(lambda: len(got) == 1, what="the genuine event")
         wire = reader.key(m.EVENTS_RETREAT)
         with caplog.at_level("WARNING", logger="bus.transport"):
             for i in range(300):
-                forged = m.RetreatEvent(segment=i, H=85, reason=m.RetreatEvent.RETREAT, stamp=time.time())
+                forged = m.RetreatEvent(segment=i, H=85, reason=m.SegmentEnd.RETREAT, stamp=time.time())
                 part.session.put(wire, forged.SerializeToString())  # unsigned
                 sign(forged, mac_key("another stack"))
                 part.session.put(wire, forged.SerializeToString())  # foreign

@@ -48,7 +48,7 @@ def forged_view(name: str, rng: np.random.Generator) -> dict[str, bytes]:
     retreat = m.RetreatEvent(
         segment=int(rng.integers(10**6)),
         H=FORGED_H,
-        reason=m.RetreatEvent.RETREAT,
+        reason=m.SegmentEnd.RETREAT,
         statistic=[FORGED_STATISTIC],
         stamp=time.time(),
     )

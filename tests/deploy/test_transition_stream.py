@@ -35,7 +35,7 @@ def arm(endpoint) -> Iterator[tuple[Bus, Callable[[], Bus]]]:
 
 
 def _tick() -> m.Transition:
-    return m.Transition(reward=-1.0, end=m.Transition.OPEN)
+    return m.Transition(reward=-1.0, end=m.SegmentEnd.OPEN)
 
 
 def _outbox(bus: Bus, limit: int = 1000) -> Outbox:

@@ -203,7 +203,7 @@ def transition(step: int, obs_tick: int) -> m.Transition:
         reward=-0.1 * step,
         next_obs=obs(obs_tick + 1),
         truncated=step == 3,
-        end=m.Transition.EPISODE_END if step == 3 else m.Transition.OPEN,
+        end=m.SegmentEnd.EPISODE_END if step == 3 else m.SegmentEnd.OPEN,
         target_age=0.03,
     )
 

@@ -88,9 +88,9 @@ def test_the_page_counts_only_signed_events_within_range(monitor):
     server, probe, _ = monitor
     stranger, stack = probe.bus, mac_key(TOKEN)
     key = stranger.key(m.EVENTS_RETREAT)
-    unsigned = m.RetreatEvent(segment=1, H=3, reason=m.RetreatEvent.RETREAT, stamp=1.0, statistic=[1e76])
-    too_long = m.RetreatEvent(segment=2, H=85, reason=m.RetreatEvent.RETREAT, stamp=2.0)
-    genuine = m.RetreatEvent(segment=3, H=4, reason=m.RetreatEvent.H_MAX, stamp=3.0, statistic=[0.5])
+    unsigned = m.RetreatEvent(segment=1, H=3, reason=m.SegmentEnd.RETREAT, stamp=1.0, statistic=[1e76])
+    too_long = m.RetreatEvent(segment=2, H=85, reason=m.SegmentEnd.RETREAT, stamp=2.0)
+    genuine = m.RetreatEvent(segment=3, H=4, reason=m.SegmentEnd.H_MAX, stamp=3.0, statistic=[0.5])
     sign(too_long, stack)
     sign(genuine, stack)
     for msg in (unsigned, too_long, genuine, genuine):  # the last an exact replay

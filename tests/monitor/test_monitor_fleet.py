@@ -122,7 +122,7 @@ def _episodes(peer: Fleet, arm: str, successes: list[bool]) -> list[m.Transition
             t = m.Transition(
                 stream=f"stream-{arm}", step=step, episode=episode, reward=-1.0, terminated=last and success,
                 truncated=last and not success, success=last and success, arm=arm,
-                end=m.Transition.EPISODE_END if last else m.Transition.OPEN,
+                end=m.SegmentEnd.EPISODE_END if last else m.SegmentEnd.OPEN,
             )  # fmt: skip
             put(t)
             sent.append(t)

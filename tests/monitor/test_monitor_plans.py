@@ -66,7 +66,7 @@ def test_monitor_keeps_planned_and_executed_paths_and_the_retreat_cut(endpoint):
         for i in range(2):
             state(101 + i, 0.01 * (i + 1), first, i)
         state(102, 0.02, first, 1)  # a state between ticks repeats its tick: not a second step
-        put[m.EVENTS_RETREAT](m.RetreatEvent(segment=3, H=2, reason=m.RetreatEvent.RETREAT))
+        put[m.EVENTS_RETREAT](m.RetreatEvent(segment=3, H=2, reason=m.SegmentEnd.RETREAT))
         probe.wait(lambda: mon.counts["retreats"] == 1, 5, "the retreat")
         second = put[m.CMD_CHUNK](
             m.ActionChunk(
