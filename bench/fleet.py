@@ -14,7 +14,8 @@ Fault runs, two arms, seed 0:
   without a gap, the sum equal to the learner's steps), seconds from the new learner's start to its first
   step learned;
 - ``arm_killed``: the learner, arm0 and arm1 each under their own supervisor (``--arms``), as on three
-  machines; arm1's stopped half-way: arm0's last-quarter success beside the same seed's two-arm run;
+  machines; arm1's supervisor and parts SIGKILLed half-way (a machine that loses power): arm0's
+  last-quarter success beside the same seed's two-arm run;
 - ``arm_added``: arm0 and arm1 from the start, arm2 started a third in: seconds from its robot-io's first
   state to its first plan, and whether that plan came from the newest snapshot.
 
@@ -58,6 +59,7 @@ TOKEN = "fleet-bench-token"
 WINDOW, GOAL = 20, 0.70  # rolling success over this many episodes; the level "learned" means
 FAULTS = ("learner_outage", "arm_killed", "arm_added")
 OUTAGE_S = 10.0
+ADDED = ("first_plan_after_robot_io_s", "first_plan_after_start_s", "newest_snapshot_when_started")
 CLK = os.sysconf("SC_CLK_TCK")
 
 
@@ -243,10 +245,12 @@ def _fault(
                     break
             time.sleep(0.05)
         return {"outage_s": t_back - t_kill, "learning_again_s": t_learning - t_back}
-    if kind == "arm_killed":
-        _wait_step(watch, steps // 2, procs["learner"], "stopping arm1")
-        _stop(procs.pop("arm1"))
-        return {"arm1_stopped_at_step": watch.step_now()}
+    if kind == "arm_killed":  # as a machine that loses power: its supervisor and parts SIGKILLed at once
+        _wait_step(watch, steps // 2, procs["learner"], "killing arm1")
+        parts = running_parts(config)
+        for pid in [procs.pop("arm1").pid, parts["robot-io@arm1"], parts["act@arm1"]]:
+            os.kill(pid, signal.SIGKILL)
+        return {"arm1_killed_at_step": watch.step_now()}
     if kind == "arm_added":
         _wait_step(watch, steps // 3, procs["learner"], "adding an arm")
         newest = max((v for _, v in watch.snapshots), default=-1)
@@ -260,6 +264,7 @@ def _fault(
         return {
             "added_at_step": watch.step_now(),
             "first_plan_after_robot_io_s": None if state is None or chunk is None else chunk - state,
+            "first_plan_after_start_s": None if chunk is None else chunk - t_add,  # processes' start-up too
             "newest_snapshot_when_started": newest,
             "first_transition_policy_version": watch.first_version.get(names[-1]),
         }
@@ -409,9 +414,9 @@ def _row(rs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _fault_row(r: dict[str, Any], two_arms: list[dict[str, Any]]) -> dict[str, Any]:
-    out = {k: r.get(k) for k in ("outage_s", "learning_again_s", "arm1_stopped_at_step", "added_at_step")}
+    out = {k: r.get(k) for k in ("outage_s", "learning_again_s", "arm1_killed_at_step", "added_at_step")}
     out.update(
-        {k: r.get(k) for k in ("first_plan_after_robot_io_s", "newest_snapshot_when_started")},
+        {k: r.get(k) for k in ADDED},
         first_transition_policy_version=r.get("first_transition_policy_version"),
         transitions_lost=r.get("transitions_lost"),
         actors_lost=sum((a.get("transitions_lost") or 0) for a in r["per_arm"].values()),
@@ -437,6 +442,7 @@ def _goals(rows: dict[int, dict[str, Any]], faults: dict[str, dict[str, Any]]) -
     cpu = [r["max_cpu_cores_per_arm"] for r in rows.values() if r["max_cpu_cores_per_arm"] is not None]
     if cpu:
         goals["cpu_cores_per_arm_max"] = {"value": max(cpu), "goal": "<= 0.35", "met": max(cpu) <= 0.35}
+    goals.update(_ingest_goals())
     outage = faults.get("learner_outage")
     if outage:
         ok = outage["transitions_lost"] == 0 and outage["actors_lost"] == 0
@@ -461,6 +467,26 @@ def _goals(rows: dict[int, dict[str, Any]], faults: dict[str, dict[str, Any]]) -
         s = added["first_plan_after_robot_io_s"]
         goals["arm_added_first_plan_s"] = {"value": s, "goal": "<= 2", "met": s <= 2}
     return goals
+
+
+def _ingest_goals() -> dict[str, Any]:
+    """The learner's ceiling at budgets 1000 and 100 (``bench/learner_ingest.py``'s newest run, the feeder
+    bench: no Zenoh, no arms), against the fleet's needs: 20 arms at 20 Hz, and 2,000 at budget 100."""
+    path = ROOT / "results" / "learner_ingest.json"
+    if not path.exists():
+        return {}
+    rows = json.loads(path.read_text())["runs"]["after"]["rows"]
+    return {
+        f"learner_ingest_per_s_budget_{r['budget']}": {
+            "value": r["transitions_per_s"],
+            "goal": f">= {r['goal_per_s']:.0f}",
+            "met": r["goal_met"],
+            "us_per_transition": r["us_per_transition"],
+            "arithmetic_us": r["arithmetic"]["us_total"],
+        }
+        for r in rows
+        if r["budget"] in (100, 1000)
+    }
 
 
 def plot(summary: dict[str, Any], steps: int) -> Path:
@@ -497,14 +523,15 @@ def plot(summary: dict[str, Any], steps: int) -> Path:
     steps_goal = [rows[n]["mean_steps_to_goal"] or np.nan for n in ns]
     wall_goal = [rows[n]["mean_wall_to_goal_s"] or np.nan for n in ns]
     xs = np.arange(len(ns))
-    c.bar(xs - 0.2, steps_goal, 0.4, label="steps (left)", color="tab:purple")
+    by_steps = c.bar(xs - 0.2, steps_goal, 0.4, color="tab:purple")
     c2 = c.twinx()
-    c2.bar(xs + 0.2, wall_goal, 0.4, label="seconds (right)", color="tab:gray")
+    by_time = c2.bar(xs + 0.2, wall_goal, 0.4, color="tab:gray")
     c.set(xticks=xs, xticklabels=[f"{n} arm(s)" for n in ns], ylabel="steps to 70 %")
     c2.set(ylabel="seconds to 70 %")
     c.set_title("to 70 % rolling success (mean of the seeds that reached it)")
-    c.legend(loc="upper left", fontsize=8)
-    c2.legend(loc="upper right", fontsize=8)
+    c.set_ylim(0, 1.3 * np.nanmax(steps_goal))  # headroom for the legend, drawn on the axes in front
+    c2.set_ylim(0, 1.3 * np.nanmax(wall_goal))
+    c2.legend([by_steps, by_time], ["steps (left axis)", "seconds (right axis)"], loc="upper center", ncols=2)
     fig.suptitle(f"NS Reach over the stack: N simulated arms, one learner ({steps} steps in all, 2 cores)")
     fig.tight_layout()
     path = ROOT / "results" / "fleet.png"

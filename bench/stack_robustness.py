@@ -48,7 +48,7 @@ from stack_bench import curve, latency, quarters, run_in_process  # noqa: E402
 
 from bus import messages as m  # noqa: E402
 from bus.signing import mac_key  # noqa: E402
-from bus.transport import Bus, open_session  # noqa: E402
+from bus.transport import Bus, open_session, wait_listening  # noqa: E402
 from deploy.config import compose_stack_yaml, load_stack_config, load_yaml  # noqa: E402
 from deploy.stack import running_parts  # noqa: E402
 
@@ -140,7 +140,10 @@ class Watcher:
 
     def __init__(self, config: Path, token: str) -> None:
         cfg = load_stack_config(config)
-        self.bus = Bus(open_session(cfg.zenoh), cfg.name, mac_key(token))
+        # A client of the supervisor's hub, never its listener: opened first, it would take the hub
+        zc = cfg.zenoh.model_copy(update={"connect": (cfg.zenoh.hub,)})
+        wait_listening(cfg.zenoh.hub)
+        self.bus = Bus(open_session(zc), cfg.name, mac_key(token))
         self.lock = threading.Lock()
         self.states: list[tuple[float, int, str]] = []
         self.chunks: list[tuple[float, int]] = []

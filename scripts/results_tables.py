@@ -165,6 +165,41 @@ def handoff(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def fleet(data: dict[str, Any]) -> str:
+    """``results/fleet.json``: per number of arms, the seeds' steps and seconds to 70 % rolling success,
+    last-quarter success per arm, the learner's rate and each arm's CPU."""
+    lines = [
+        "| arms | seeds | steps to 70 % rolling (each seed) | seconds to 70 % (each seed) |"
+        " last-quarter success % per arm (each seed) | learner transitions/s | CPU per arm, cores (max) |"
+        " steps/s per arm |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for n, r in sorted(data["by_arms"].items(), key=lambda kv: int(kv[0])):
+        per_arm = "; ".join("/".join(_pct(x) for x in seed) for seed in r["last_quarter_success_per_arm"])
+        cells = [
+            n,
+            ", ".join(map(str, r["seeds"])),
+            ", ".join(_fmt(x, "d") for x in r["steps_to_goal"]),
+            ", ".join(_fmt(x) for x in r["wall_to_goal_s"]),
+            per_arm,
+            _fmt(r["learner_transitions_per_s"]),
+            f"{_fmt(r['cpu_cores_per_arm'], '.2f')} ({_fmt(r['max_cpu_cores_per_arm'], '.2f')})",
+            _fmt(r["steps_per_s_per_arm"], ".1f"),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def fleet_goals(data: dict[str, Any]) -> str:
+    """``results/fleet.json``: each goal of issue #47 the bench measures, its value and whether it is met."""
+    lines = ["| goal | measured | bar | met |", "|---|---|---|---|"]
+    for name, g in data["goals"].items():
+        value = g["value"]
+        shown = "-" if value is None else (f"{value:.2f}" if isinstance(value, float) else str(value))
+        lines.append(f"| {name.replace('_', ' ')} | {shown} | {g['goal']} | {'yes' if g['met'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
 def plans_point(data: dict[str, Any], method: str) -> str:
     """A plans-bench summary (``results/plans``, or ``results/plans_s10``: the front, the default and the
     corrected option on 10 seeds): one plan-retreat point per setting against the bar (above the
@@ -178,6 +213,8 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "handoff": ("results/handoff.json", handoff),
+    "fleet": ("results/fleet.json", fleet),
+    "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
     "plans_corrected": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-corrected")),
     "plans_s10_default": ("results/plans_s10/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -242,6 +279,15 @@ PAGES: dict[str, Page] = {
         "python bench/handoff.py",
         (("## By setting and start", "handoff"), ("## Figure", "handoff.png")),
         "../handoff.md#results",
+    ),
+    "fleet.md": Page(
+        "Several arms, one learner",
+        "NS Reach over the stack with N simulated arms feeding one learner on this 2-core machine (cameras"
+        " off for every N): steps of all arms together and seconds until the pooled rolling success over"
+        " 20 episodes reaches 70 %, then the fault runs (learner outage, an arm stopped, an arm added).",
+        "python bench/fleet.py --arms 1 2 4 --seeds 0 1 2 --faults",
+        (("## By number of arms", "fleet"), ("## Goals", "fleet_goals"), ("## Figure", "fleet.png")),
+        "../fleet.md#measured",
     ),
     "plans.md": Page(
         "Plans: the plan retreat against fixed horizons",
