@@ -429,43 +429,39 @@ def _fault_row(r: dict[str, Any], two_arms: list[dict[str, Any]]) -> dict[str, A
     return {k: v for k, v in out.items() if v is not None}
 
 
+def _at_most(value: float | None, bar: str) -> dict[str, Any]:
+    """A goal met when ``value`` is at most ``bar`` (as the issue writes it)."""
+    return {"value": value, "goal": f"<= {bar}", "met": value is not None and value <= float(bar)}
+
+
 def _goals(rows: dict[int, dict[str, Any]], faults: dict[str, dict[str, Any]]) -> dict[str, Any]:
     one = rows.get(1, {})
     goals: dict[str, Any] = {}
     for n in (2, 4):
         if n in rows and one.get("mean_steps_to_goal") and rows[n]["mean_steps_to_goal"]:
             ratio = rows[n]["mean_steps_to_goal"] / one["mean_steps_to_goal"]
-            goals[f"steps_to_goal_ratio_n{n}"] = {"value": ratio, "goal": "<= 1.25", "met": ratio <= 1.25}
+            goals[f"steps_to_goal_ratio_n{n}"] = _at_most(ratio, "1.25")
     if 2 in rows and one.get("mean_wall_to_goal_s") and rows[2]["mean_wall_to_goal_s"]:
-        ratio = rows[2]["mean_wall_to_goal_s"] / one["mean_wall_to_goal_s"]
-        goals["wall_to_goal_ratio_n2"] = {"value": ratio, "goal": "<= 0.65", "met": ratio <= 0.65}
+        goals["wall_to_goal_ratio_n2"] = _at_most(
+            rows[2]["mean_wall_to_goal_s"] / one["mean_wall_to_goal_s"], "0.65"
+        )
     cpu = [r["max_cpu_cores_per_arm"] for r in rows.values() if r["max_cpu_cores_per_arm"] is not None]
     if cpu:
-        goals["cpu_cores_per_arm_max"] = {"value": max(cpu), "goal": "<= 0.35", "met": max(cpu) <= 0.35}
+        goals["cpu_cores_per_arm_max"] = _at_most(max(cpu), "0.35")
     goals.update(_ingest_goals())
     outage = faults.get("learner_outage")
     if outage:
         ok = outage["transitions_lost"] == 0 and outage["actors_lost"] == 0
         goals["outage_lost"] = {"value": outage["transitions_lost"], "goal": "0", "met": ok}
-        again = outage.get("learning_again_s")
-        goals["outage_learning_again_s"] = {
-            "value": again,
-            "goal": "<= 5",
-            "met": again is not None and again <= 5,
-        }
+        goals["outage_learning_again_s"] = _at_most(outage.get("learning_again_s"), "5")
     killed = faults.get("arm_killed")
     if killed and "arm0_last_quarter_without_the_kill" in killed:
         with_kill = killed["last_quarter_success_per_arm"]["arm0"]
         gap = abs(with_kill - killed["arm0_last_quarter_without_the_kill"]) if with_kill is not None else None
-        goals["arm_killed_other_within_10_points"] = {
-            "value": gap,
-            "goal": "<= 0.10",
-            "met": gap is not None and gap <= 0.10,
-        }
+        goals["arm_killed_other_within_10_points"] = _at_most(gap, "0.10")
     added = faults.get("arm_added")
-    if added and "first_plan_after_robot_io_s" in added:
-        s = added["first_plan_after_robot_io_s"]
-        goals["arm_added_first_plan_s"] = {"value": s, "goal": "<= 2", "met": s <= 2}
+    if added:
+        goals["arm_added_first_plan_s"] = _at_most(added.get("first_plan_after_robot_io_s"), "2")
     return goals
 
 
