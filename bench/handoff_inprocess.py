@@ -3,7 +3,8 @@ in-process policy bench/handoff.py hands to the stack, on the world it was train
 and on a slower arm (0.1, the slow_arm gap's), learning on or frozen; and from scratch. Minutes where
 the stack bench takes hours, so a change to how the learner learns after a handoff is seen here first.
 ``--score noise`` (the default) scores each sample as the stack's actor does; ``executed`` as the plans
-experiment's in-process runs did (``learner.agent.plan_score``).
+experiment's in-process runs did (``learner.agent.plan_score``). ``--handoff-step-scale``: the
+fine-tuning step after the handoff (``learner.agent.handoff_step_scale``).
 
 Per run: success by quarter of 6000 steps. Each run is appended under its label to
 ``results/handoff_inprocess.json`` (a label run again replaces its runs).
@@ -36,9 +37,10 @@ STEPS = 6000
 GAINS = {"trained_world": 0.3, "slow_arm": 0.1}  # robot.mock.position_gain: configs/gaps/slow_arm.yaml's
 
 
-def run(seed: int, variant: str, gain: float, score: str) -> dict[str, Any]:
+def run(seed: int, variant: str, gain: float, score: str, step_scale: float) -> dict[str, Any]:
     agent_cfg = load_stack_config(ROOT / "configs" / "sim.yaml").learner.agent_config()
     agent_cfg["plan_score"] = score
+    agent_cfg["handoff_step_scale"] = step_scale
     if variant == "frozen":
         agent_cfg["frozen"] = True
     env = gym.make("NSReach-v0", motion="slow", max_episode_steps=50, seed=seed)
@@ -60,6 +62,7 @@ def main() -> int:
     ap.add_argument("--label", default=None, help="the runs' label (default: the score)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
+    ap.add_argument("--handoff-step-scale", type=float, default=1.0, help="agent.handoff_step_scale")
     args = ap.parse_args()
     args.label = args.label or f"{args.score} score"
     import learner
@@ -74,7 +77,8 @@ def main() -> int:
                 continue
             for seed in args.seeds:
                 row = {"label": args.label, "commit": commit.strip(), "variant": variant, "world": world}
-                row |= {"seed": seed, "score": args.score, **run(seed, variant, gain, args.score)}
+                row |= {"seed": seed, "score": args.score, "handoff_step_scale": args.handoff_step_scale}
+                row |= run(seed, variant, gain, args.score, args.handoff_step_scale)
                 print(json.dumps(row), flush=True)
                 data["runs"].append(row)
     OUT.write_text(json.dumps(data, indent=1))

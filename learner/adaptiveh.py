@@ -485,11 +485,12 @@ class AdaptiveH:
 
     def _schedule(self) -> None:
         """This step's exploration std and step size on their schedules (``sigma_final``, ``alpha_final``):
-        a policy still moving at full step and full noise late in a run swings between good and bad."""
+        a policy still moving at full step and full noise late in a run swings between good and bad. After
+        a handoff the step is ``handoff_step_scale`` of it."""
         cfg = self.config
         frac = min((self.schedule_offset + self.log.global_step) / cfg.schedule_steps, 1.0)
-        if cfg.alpha_final is not None:
-            self.alpha = cfg.alpha + (cfg.alpha_final - cfg.alpha) * frac
+        alpha = cfg.alpha if cfg.alpha_final is None else cfg.alpha + (cfg.alpha_final - cfg.alpha) * frac
+        self.alpha = alpha * (cfg.handoff_step_scale if self.started_from is not None else 1.0)
         if cfg.sigma_final is not None:
             self.policy.explore((cfg.sigma + (cfg.sigma_final - cfg.sigma) * frac) * self.policy.half_range)
 

@@ -129,6 +129,13 @@ class AdaptiveHConfig(Section):
     )
     # The policy is never updated: a handed-off policy measured as it is (bench/handoff.py's "frozen").
     frozen: bool = False
+    handoff_step_scale: float = Field(
+        1.0,
+        gt=0,
+        le=1,
+        description="after a handoff (learner.policy_from), the policy's step size as a fraction of its"
+        " schedule's: a policy trained elsewhere is fine-tuned, not trained again (1: the same step)",
+    )
     epsilon: float = Field(1.0, gt=0)  # the ε of Theorem 1, used by the literal threshold Z ε / 2
     h_max: int = Field(
         50,

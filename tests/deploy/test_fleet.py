@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from bus_probe import BusProbe
 from polling import wait_until
 from stack_helpers import parts_of, running_part, write_fleet_config
@@ -28,6 +29,7 @@ from stack_helpers import parts_of, running_part, write_fleet_config
 from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, ZenohConfig, open_session, wait_listening
+from monitor.recording import read
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -70,6 +72,11 @@ def test_two_arms_feed_one_learner_both_play_its_snapshots_and_a_learner_kill_lo
     assert sum(learned.values()) == result["global_step"] == 500
     assert result["transitions_lost"] == 0
     assert {e["arm"] for e in result["episodes"]} == {"arm0", "arm1"}
+    # The recording keeps each arm's channels apart: its states and plans under its own key.
+    keys = {key for key, *_ in read(summary["recording"])}
+    for arm in arms:
+        assert {m.STATE.key(f"{_name(path)}/{arm}"), m.CMD_CHUNK.key(f"{_name(path)}/{arm}")} <= keys
+    assert m.TRANSITIONS.key(_name(path)) in keys  # the fleet's: one stream topic for all arms
 
 
 class Operator(BusProbe):
@@ -154,6 +161,10 @@ def test_a_late_arm_plays_the_newest_snapshot_a_dead_arm_leaves_the_other_going_
                 release(m.Control(command=m.Control.RELEASE, jog=[0.0] * 3, arm="arm0"))
                 op.wait(lambda: op.modes.get("arm0") != "estop", 10, "arm0 released")
         op.bus.close()
+
+
+def _name(config: Path) -> str:
+    return yaml.safe_load(config.read_text())["name"]
 
 
 def _streams(ckpt: Path) -> dict:

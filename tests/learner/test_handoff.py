@@ -105,3 +105,16 @@ def test_each_arm_records_the_tcp_its_urdf_has(model):
     pin.framesForwardKinematics(kin.model, kin.data, q)
     distance = np.linalg.norm(kin.data.oMf[flange].translation - kin.ee_position(q))
     assert distance == pytest.approx(MODELS[model].tcp_offset_m, abs=1e-4)
+
+
+def test_a_handed_off_policy_is_fine_tuned_at_a_fraction_of_the_step(trained):
+    """``handoff_step_scale``: after a handoff the policy's step is that fraction of its schedule's (the
+    source's steps carry the schedule on); a run that started from nothing keeps the schedule's step."""
+    path, _, _ = trained
+    quarter = AGENT.model_copy(update={"handoff_step_scale": 0.25})
+    spec = stack_spec("configs/sim.yaml")
+    scaled, plain, fresh = (AdaptiveH(spec, c, seed=0) for c in (quarter, AGENT, quarter))
+    scaled.start_from(path)
+    plain.start_from(path)
+    assert scaled.alpha == pytest.approx(0.25 * plain.alpha) and plain.alpha > 0
+    assert fresh.alpha == pytest.approx(AGENT.alpha)  # no handoff: the schedule's own step
