@@ -227,7 +227,9 @@ class FleetConfig(Section):
 
     arms: tuple[ArmConfig, ...] = Field(
         min_length=1,
-        description="the arms, each with its own robot-io and actor (adaptiveh up starts them all)",
+        description="the arms, each {name: its key part (adaptiveh/<name>/<arm>/...), seed: its target's"
+        " motion and its actor's exploration}, each with its own robot-io and actor (adaptiveh up starts"
+        " them all)",
     )
 
     @field_validator("arms")
