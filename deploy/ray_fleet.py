@@ -26,7 +26,6 @@ from __future__ import annotations
 import logging
 import os
 import socket
-import subprocess
 import threading
 import time
 import warnings
@@ -43,7 +42,7 @@ from ray.util.scheduling_strategies import PlacementGroupSchedulingStrategy
 from common.config import parse
 from common.errors import AdaptiveHError
 from deploy.config import StackConfig, compose_stack_yaml
-from deploy.stack import Stack, base_part, private_log
+from deploy.stack import Stack
 
 log = logging.getLogger(__name__)
 
@@ -132,27 +131,12 @@ class ArmHost:
         self.stack = Stack(path, run_dir=self.dir, token=token, progress=False, arms=[arm])
         self._lock = threading.Lock()
         self._stopping = False
-        again = _restarted()
-        for part, cmd in self.stack.part_commands().items():
-            self._spawn(part, cmd, append=again)
+        parts = self.stack.part_commands()
+        if _restarted():  # Ray brought this arm back: its parts' logs go on
+            self.stack.restarts = dict.fromkeys(parts, 1)
+        for part in parts:
+            self.stack.spawn(part)
         threading.Thread(target=self._watch, name=f"watch-{arm}", daemon=True).start()
-
-    def _spawn(self, part: str, cmd: list[str], append: bool) -> None:
-        """``part`` as the supervisor starts it (``Stack._spawn``); a restart appends to its log."""
-        logs = self.dir / "logs"
-        logs.mkdir(mode=0o700, exist_ok=True)
-        with private_log(logs / f"{part}.log", append=append) as fh:
-            proc = subprocess.Popen(
-                cmd,
-                stdout=fh,
-                stderr=subprocess.STDOUT,
-                env=self.stack.part_environment(part),
-                start_new_session=True,
-            )
-        self.stack.procs[part] = proc
-        nice = self.stack.cfg.supervisor.nice.get(base_part(part), 0)
-        if nice:
-            os.setpriority(os.PRIO_PROCESS, proc.pid, nice)
 
     def _watch(self) -> None:
         while True:

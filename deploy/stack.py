@@ -254,7 +254,7 @@ class Stack:
             env[IDENTITY_ENV] = PART_IDENTITY[base_part(part)]
         return env
 
-    def _spawn(self, part: str) -> None:
+    def spawn(self, part: str) -> None:
         """Start ``part`` with its output in ``<run>/logs/<part>.log``, 0600 in a 0700 folder when new."""
         logs = self.run_dir / "logs"
         logs.mkdir(mode=0o700, parents=True, exist_ok=True)
@@ -289,7 +289,7 @@ class Stack:
         self.restarts[part] = used + 1
         if self._stop.wait(wait):
             return False
-        self._spawn(part)
+        self.spawn(part)
         return True
 
     def request_stop(self) -> None:
@@ -356,7 +356,7 @@ class Stack:
         t0 = time.monotonic()
         try:
             for part in self.part_commands():
-                self._spawn(part)
+                self.spawn(part)
                 if part == "monitor":
                     self._wait_monitor_url()
                     print(f"monitor: {self.monitor_url}", flush=True)
