@@ -273,6 +273,16 @@ def section_model(annotation: Any) -> type[BaseModel] | None:
     return None
 
 
+def item_model(annotation: Any) -> type[BaseModel] | None:
+    """The model of each item of a key that is a list of sections (``tuple[ArmConfig, ...]``), else None."""
+    if typing.get_origin(annotation) is Annotated:
+        return item_model(typing.get_args(annotation)[0])
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (list, tuple) and args and args[-1] in (Ellipsis, args[0]):
+        return section_model(args[0])
+    return None
+
+
 # -- tables and pages ------------------------------------------------------------------------------
 
 
@@ -331,6 +341,9 @@ def tables(
         kind, bounds = describe_type(info.annotation, info.metadata)
         shown = "required" if required else f"`{_yaml(value)}`"
         rows.append(Row(key, _escape(kind), shown, bounds, _escape(text)))
+        each = item_model(info.annotation)
+        if each is not None:  # a list of sections: each item's keys, below (``fleet.arms.name``)
+            below += tables(each, key, None, link, level=3)
     return [Table(path, model, tuple(rows), level), *below]
 
 
