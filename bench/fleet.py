@@ -51,6 +51,7 @@ from loopback import free_endpoint, unique_name  # noqa: E402
 from bus import messages as m  # noqa: E402
 from bus.signing import mac_key  # noqa: E402
 from bus.transport import Bus, ZenohConfig, open_session  # noqa: E402
+from common.proc_status import cpu_seconds  # noqa: E402
 from deploy.config import compose_stack_yaml  # noqa: E402
 from deploy.stack import running_parts  # noqa: E402
 
@@ -60,7 +61,6 @@ WINDOW, GOAL = 20, 0.70  # rolling success over this many episodes; the level "l
 FAULTS = ("learner_outage", "arm_killed", "arm_added")
 OUTAGE_S = 10.0
 ADDED = ("first_plan_after_robot_io_s", "first_plan_after_start_s", "newest_snapshot_when_started")
-CLK = os.sysconf("SC_CLK_TCK")
 
 
 def fleet_config(directory: Path, arms: int, seed: int, steps: int) -> dict[str, Any]:
@@ -128,7 +128,7 @@ class CpuMeter:
     def _loop(self) -> None:
         while not self._stop.wait(1.0):
             for part, pid in running_parts(self.config).items():
-                cpu = _cpu_seconds(pid)
+                cpu = cpu_seconds(pid)
                 if cpu is not None:
                     self.by_pid[pid] = (part, cpu)
 
@@ -139,14 +139,6 @@ class CpuMeter:
         for part, cpu in self.by_pid.values():
             out[part] = out.get(part, 0.0) + cpu
         return out
-
-
-def _cpu_seconds(pid: int) -> float | None:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / CLK  # utime + stime
 
 
 def _up(config: Path, *args: str) -> subprocess.Popen:
@@ -193,11 +185,11 @@ def run(kind: str, arms: int, seed: int, steps: int) -> dict[str, Any]:
         config.write_text(yaml.safe_dump(cfg))
         names = [a["name"] for a in cfg["fleet"]["arms"]]
         t0 = time.monotonic()
-        procs, extra = _start(kind, config, names)
+        procs = _start(kind, config, names)
         watch = Watch(cfg, names)
         meter = CpuMeter(config)
         try:
-            extra.update(_fault(kind, config, watch, procs, names, steps))
+            extra = _fault(kind, config, watch, procs, names, steps)
             if procs["learner"].wait(timeout=steps / 5 + 600) != 0:
                 raise RuntimeError(f"adaptiveh up ended with {procs['learner'].returncode}")
             wall = time.monotonic() - t0
@@ -212,17 +204,17 @@ def run(kind: str, arms: int, seed: int, steps: int) -> dict[str, Any]:
         return _record(kind, arms, seed, steps, wall, t0, watch, cpu, result, actors, extra)
 
 
-def _start(kind: str, config: Path, names: list[str]) -> tuple[dict[str, subprocess.Popen], dict]:
+def _start(kind: str, config: Path, names: list[str]) -> dict[str, subprocess.Popen]:
     """``adaptiveh up`` as the run needs it: one supervisor, or the learner's and the arms' apart."""
     if kind in ("pooled", "learner_outage"):
-        return {"learner": _up(config)}, {}
+        return {"learner": _up(config)}
     procs = {"learner": _up(config, "--arms", "none")}
     time.sleep(2.0)  # the learner's supervisor owns the hub the arms join
     if kind == "arm_killed":
         procs.update({n: _up(config, "--arms", n) for n in names})
     else:  # arm_added: the last arm comes later
         procs["first"] = _up(config, "--arms", ",".join(names[:-1]))
-    return procs, {}
+    return procs
 
 
 def _fault(
@@ -525,8 +517,9 @@ def plot(summary: dict[str, Any], steps: int) -> Path:
     c.set(xticks=xs, xticklabels=[f"{n} arm(s)" for n in ns], ylabel="steps to 70 %")
     c2.set(ylabel="seconds to 70 %")
     c.set_title("to 70 % rolling success (mean of the seeds that reached it)")
-    c.set_ylim(0, 1.3 * np.nanmax(steps_goal))  # headroom for the legend, drawn on the axes in front
-    c2.set_ylim(0, 1.3 * np.nanmax(wall_goal))
+    for ax, heights in ((c, steps_goal), (c2, wall_goal)):  # headroom for the legend, on the front axes
+        if np.isfinite(heights).any():
+            ax.set_ylim(0, 1.3 * np.nanmax(heights))
     c2.legend([by_steps, by_time], ["steps (left axis)", "seconds (right axis)"], loc="upper center", ncols=2)
     fig.suptitle(f"NS Reach over the stack: N simulated arms, one learner ({steps} steps in all, 2 cores)")
     fig.tight_layout()

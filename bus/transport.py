@@ -509,7 +509,7 @@ class Bus:
             try:
                 callback(msg)
             except Exception:  # a handler bug must not kill Zenoh's thread
-                log.exception("handler for %s failed", self.key(topic))
+                log.exception("handler for %s failed", self.key(topic, arm))
 
         self.declare(lambda s: s.declare_subscriber(self.key(topic, arm), handler))
 

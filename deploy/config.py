@@ -296,8 +296,13 @@ class StackConfig(Section):
         """The arms ``adaptiveh up`` starts: the fleet's, or [""] for the one arm of a plain stack."""
         return [a.name for a in self.fleet.arms] if self.fleet is not None else [""]
 
-    def for_arm(self, name: str) -> StackConfig:
-        """The config as arm ``name``'s parts read it: its keys, its seeds (``ArmConfig.seed``)."""
+    def for_arm(self, name: str | None) -> StackConfig:
+        """The config as arm ``name``'s parts read it: its keys, its seeds (``ArmConfig.seed``); None: a
+        stack of one arm, as it is (a fleet's part must say which arm: its keys depend on it)."""
+        if name is None:
+            if self.fleet is not None:
+                raise ConfigError(f"the config has a fleet of arms {self.arm_names}: say which with --arm")
+            return self
         if self.fleet is None:
             raise ConfigError(f"arm {name!r}: the config has no fleet section")
         try:

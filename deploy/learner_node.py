@@ -108,7 +108,6 @@ class LearnerNode(Node):
         self._segments_seen = self.agent.log.segment_count
         self.archive = RunArchive(self.ckpt.parent, self.agent.log)
         self._arm_changes: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()  # (arm, alive)
-        self.arms_seen: dict[str, int] = {}  # arm -> times its actor came (fleet: arms come and go)
         if self.stream:
             self.feed = Inbox(self.bus, getattr(self.agent, "stream_marks", {}))
             self.bus.watch_arms("actor", lambda arm, alive: self._arm_changes.put((arm, alive)))
@@ -159,6 +158,18 @@ class LearnerNode(Node):
         )
 
     def _after_step(self) -> None:
+        new_episode = self._report_closed()
+        lg = self.agent.log
+        if new_episode:
+            self._telemetry()
+        elif lg.global_step % TELEMETRY_EVERY == 0:
+            self._telemetry()  # the operator sees the step count move between episodes
+        if lg.global_step % self.cfg.checkpoint_every == 0:
+            self.save()
+
+    def _report_closed(self) -> bool:
+        """Publish the segments closed since the last call and archive them with the episodes; whether an
+        episode ended."""
         lg = self.agent.log
         for rec in lg.segments_since(self._segments_seen):
             self._pub_retreat(
@@ -178,12 +189,7 @@ class LearnerNode(Node):
         if lg.segment_count > self._segments_seen or new_episode:
             self._segments_seen, self._episodes_seen = lg.segment_count, lg.episode_count
             self.archive.add(lg)  # on file; memory keeps the newest
-        if new_episode:
-            self._telemetry()
-        elif lg.global_step % TELEMETRY_EVERY == 0:
-            self._telemetry()  # the operator sees the step count move between episodes
-        if lg.global_step % self.cfg.checkpoint_every == 0:
-            self.save()
+        return new_episode
 
     def _learn_stream(self, progress: Any) -> None:
         """Learn from the actor's ticks; at each segment's end checkpoint (so a killed learner loses at
@@ -220,13 +226,12 @@ class LearnerNode(Node):
             except queue.Empty:
                 return
             if alive:  # the policy as it is, even an empty one: the actor waits for it before it plans
-                self.arms_seen[arm] = self.arms_seen.get(arm, 0) + 1
                 log.info("arm %r: its actor is up", arm)
                 self._publish_snapshot()
             else:
                 closed = self.agent.close_arm(arm)
                 log.warning("arm %r: its actor is gone (%d open segment closed)", arm, len(closed))
-                self._after_step()
+                self._report_closed()
 
     def _holds_policy(self) -> bool:
         """A policy worth publishing unasked: handed off, or learned (this run or before a restart)."""

@@ -214,11 +214,8 @@ class Stack:
             "learner": self.serves_fleet,
         }
         extra: dict[str, list[str]] = {part: [] for part in PART_COMMANDS}
-        if actor:
-            extra["robot_io"] += [
-                "--watch",
-                "actor",
-            ]  # the actor commands the arm; the learner may come and go
+        if actor:  # the actor commands the arm; the learner may come and go
+            extra["robot_io"] += ["--watch", "actor"]
         if self.steps is not None:
             extra["learner"] += ["--steps", str(self.steps)]
         if self.policy_from is not None:

@@ -359,9 +359,7 @@ class AdaptiveH:
         if progress is None:
             return None
         self.retreat.segment = progress.segment
-        record = self._close_segment(SegmentEnd.H_MAX, progress.arm)
-        self.retreat.reset()
-        return record
+        return self._close_segment(SegmentEnd.H_MAX, progress.arm)
 
     def close_arm(self, arm: str) -> list[SegmentRecord]:
         """Arm ``arm`` is gone: close its streams' open segments (the records of those that were open)."""

@@ -8,37 +8,24 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any
 
 from deploy.part_env import TOKEN_ENV
 
 LOG_FORMAT = "%(asctime)s %(name)s %(levelname)s %(message)s"
 
 
-def add_part_arguments(parser: argparse.ArgumentParser, sections: str) -> None:
-    """The options every part shares: ``--config``, ``--duration``, ``--log-level``."""
+def add_part_arguments(parser: argparse.ArgumentParser, sections: str, per_arm: bool = False) -> None:
+    """The options every part shares: ``--config``, ``--duration``, ``--log-level``; ``per_arm``: an arm's
+    part (robot-io, actor, vision) also says which arm of a fleet it serves (``--arm``)."""
     parser.add_argument("--config", default="configs/sim.yaml", help=f"top-level YAML ({sections})")
     parser.add_argument(
         "--duration", type=float, default=0.0, help="stop after this many seconds (0: run until ^C)"
     )
     parser.add_argument("--log-level", default="INFO")
-
-
-def add_arm_argument(parser: argparse.ArgumentParser) -> None:
-    """``--arm``: which arm of a fleet an arm's part serves (robot-io, actor, vision)."""
-    parser.add_argument(
-        "--arm", default=None, help="the arm of the config's fleet this part serves (fleet configs only)"
-    )
-
-
-def arm_config(cfg: Any, arm: str | None) -> Any:
-    """``cfg`` as arm ``arm``'s parts read it (``StackConfig.for_arm``); unchanged without ``--arm``. A
-    fleet config needs one: its arms have no keys of their own otherwise."""
-    if arm is not None:
-        return cfg.for_arm(arm)
-    if cfg.fleet is not None:
-        raise SystemExit(f"the config has a fleet of arms {cfg.arm_names}: say which with --arm")
-    return cfg
+    if per_arm:
+        parser.add_argument(
+            "--arm", default=None, help="the arm of the config's fleet this part serves (fleet configs only)"
+        )
 
 
 def setup_logging(level: str) -> None:

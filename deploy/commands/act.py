@@ -5,23 +5,15 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import (
-    add_arm_argument,
-    add_part_arguments,
-    add_token_argument,
-    arm_config,
-    operator_token,
-    setup_logging,
-)
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "act", help="run the actor beside the robot: plans and retreats from the learner's policy snapshots"
     )
-    add_part_arguments(p, "name, zenoh, robot, learner")
+    add_part_arguments(p, "name, zenoh, robot, learner", per_arm=True)
     add_token_argument(p)
-    add_arm_argument(p)
     p.add_argument(
         "--policy-from",
         default=None,
@@ -38,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.config import load_stack_config
 
     setup_logging(args.log_level)
-    cfg = arm_config(load_stack_config(args.config, learner={"policy_from": args.policy_from}), args.arm)
+    cfg = load_stack_config(args.config, learner={"policy_from": args.policy_from}).for_arm(args.arm)
     if cfg.learner.execution != "actor":
         logging.error(
             "learner.execution is %r: the learner drives the arm itself, no actor runs", cfg.learner.execution

@@ -5,22 +5,14 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import (
-    add_arm_argument,
-    add_part_arguments,
-    add_token_argument,
-    arm_config,
-    operator_token,
-    setup_logging,
-)
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("robot-io", help="run the robot interface (mock or Franka) over Zenoh")
-    add_part_arguments(p, "name, zenoh, robot")
+    add_part_arguments(p, "name, zenoh, robot", per_arm=True)
     p.add_argument("--watch", default="learner", help="comma-separated peers whose absence holds the arm")
     add_token_argument(p)
-    add_arm_argument(p)
     p.set_defaults(func=run)
 
 
@@ -30,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from deploy.robot_io_node import RobotIONode
 
     setup_logging(args.log_level)
-    cfg = arm_config(load_stack_config(args.config), args.arm)
+    cfg = load_stack_config(args.config).for_arm(args.arm)
     watch = tuple(p for p in args.watch.split(",") if p)
     node = RobotIONode(cfg, watch_peers=watch, control_token=operator_token(args))
     robot = cfg.robot

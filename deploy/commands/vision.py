@@ -5,21 +5,13 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy.commands import (
-    add_arm_argument,
-    add_part_arguments,
-    add_token_argument,
-    arm_config,
-    operator_token,
-    setup_logging,
-)
+from deploy.commands import add_part_arguments, add_token_argument, operator_token, setup_logging
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("vision", help="run the vision process: camera frames in, 3D target out")
-    add_part_arguments(p, "name, zenoh, vision")
+    add_part_arguments(p, "name, zenoh, vision", per_arm=True)
     add_token_argument(p)
-    add_arm_argument(p)
     p.set_defaults(func=run)
 
 
@@ -30,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from vision.cameras.protocol import CameraError
 
     setup_logging(args.log_level)
-    cfg = arm_config(load_stack_config(args.config), args.arm)
+    cfg = load_stack_config(args.config).for_arm(args.arm)
     try:
         node = VisionNode(cfg, token=operator_token(args))
     except CameraError as exc:

@@ -65,6 +65,7 @@ from stack_helpers import parts_of, wait_for_parts, write_stack_config
 from bus import messages as m
 from bus.signing import mac_key
 from bus.transport import Bus, open_session
+from common.proc_status import cpu_seconds
 from deploy.config import load_stack_config
 
 pytestmark = pytest.mark.slow  # ~1 min of 100 trials under load: `.ci/run` runs it after the default run
@@ -463,15 +464,6 @@ def quantiles(xs: Sequence[float]) -> dict[str, float]:
     }
 
 
-def cpu_seconds(pid: int) -> float:
-    """CPU time (user + system) of process ``pid`` so far; 0 when it is gone."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def missing_ticks(states: Sequence[tuple[float, m.RobotState]]) -> int:
     """Ticks whose state never arrived here (robot-io publishes one a tick; Zenoh may drop under load)."""
     ticks = {s.tick for _, s in states}
@@ -497,7 +489,7 @@ def test_estop_under_load_stills_the_arm_within_two_periods_every_time(tmp_path:
         time.sleep(1.0)  # under load before the first trial
         rng = np.random.default_rng(13)
         pids = {**stack.pids, "supervisor": stack.up.pid, "hammer": proc.pid, "test": os.getpid()}
-        cpu0, load0 = {k: cpu_seconds(p) for k, p in pids.items()}, os.getloadavg()[0]
+        cpu0, load0 = {k: cpu_seconds(p) or 0.0 for k, p in pids.items()}, os.getloadavg()[0]
         overflows0, t0 = listen_overflows(), time.time()
         with probe.lock:
             step0 = telemetry[-1][1].global_step
@@ -511,7 +503,7 @@ def test_estop_under_load_stills_the_arm_within_two_periods_every_time(tmp_path:
             commands = Counter(m.label(c, "command") for _, c in stack.controls)
             lost_ticks = missing_ticks(list(stack.states))
         overflows = listen_overflows() - overflows0
-        cpu = {k: round((cpu_seconds(p) - cpu0[k]) / (t1 - t0), 3) for k, p in pids.items()}
+        cpu = {k: round(((cpu_seconds(p) or 0.0) - cpu0[k]) / (t1 - t0), 3) for k, p in pids.items()}
         load1 = os.getloadavg()[0]
         stop.set()
         proc.join(timeout=4 * HANG_S)
