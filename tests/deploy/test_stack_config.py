@@ -196,3 +196,39 @@ def test_the_plan_model_tracks_as_the_configured_arm_does():
         franky.predict_next(obs, step), predict_reach(obs, step, 0.05, tracking=measured)
     )
     assert franky.predict_next(obs, step)[1] < mock.predict_next(obs, step)[1]  # franky-sim's command lags
+
+
+@pytest.mark.parametrize(
+    "change, complaint",
+    [
+        (
+            lambda c: c["fleet"]["arms"].append({"name": "arm0", "seed": 5}),
+            r"must differ: \['arm0'\]",
+        ),
+        (lambda c: c["fleet"]["arms"].append({"name": "state", "seed": 5}), "'state' is a topic's key part"),
+        (lambda c: c["fleet"]["arms"].append({"name": "a/b", "seed": 5}), r"fleet\.arms\.2\.name"),
+        (lambda c: c["fleet"].update(arms=[]), "at least 1 item"),
+        (lambda c: c["learner"].update(execution="closed_loop"), "needs learner.execution actor"),
+        (lambda c: c["learner"]["agent"].update(critic_lambda=0.5), r"learner\.agent\.critic_lambda > 0"),
+    ],
+)
+def test_a_fleet_that_cannot_run_is_refused_naming_why(tmp_path, change, complaint):
+    """Two arms of one name would share keys, an arm named like a topic would make keys read two ways, a
+    learner that drives one arm cannot pool, and one eligibility trace cannot span interleaved arms."""
+    data = compose_stack_yaml("configs/fleet.yaml")
+    data.pop("base", None)
+    change(data)
+    with pytest.raises(ConfigError, match=complaint):
+        load_stack_config(_write(tmp_path, yaml.safe_dump(data)))
+
+
+def test_a_fleet_part_names_its_arm_and_takes_its_seed():
+    cfg = load_stack_config("configs/fleet.yaml")
+    arm = cfg.for_arm("arm1")
+    assert (arm.bus_key, arm.robot.seed, arm.learner.seed) == (f"{cfg.name}/arm1", 1, 1)
+    with pytest.raises(ConfigError, match="say which with --arm"):
+        cfg.for_arm(None)
+    with pytest.raises(ConfigError, match="no arm 'arm9'"):
+        cfg.for_arm("arm9")
+    with pytest.raises(ConfigError, match="no fleet section"):
+        load_stack_config("configs/sim.yaml").for_arm("arm0")
