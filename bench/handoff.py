@@ -14,7 +14,8 @@ reality-gap overlays on the PyBullet mock (configs/gaps/: ``slow_arm``, ``camera
 Per run: success by quarter, steps until 90 % rolling success (20 episodes), workspace clips, reflexes
 (``driver_error`` events), the achieved control rate while the arm is not homing (and the time spent
 homing), mean H per quarter, and H over the first 500 steps. Each run is kept in
-``results/handoff/<setting>/<variant>_s<seed>.json`` and not run again (resumable); ``results/handoff.json``
+``results/handoff/<setting>/<variant>_s<seed>.json`` and not run again (resumable) unless it learned after
+the handoff at another ``handoff_step_scale`` than its config gives now; ``results/handoff.json``
 and ``results/handoff.png`` summarise whatever has finished. One run at a time.
 
     python bench/handoff.py [--settings franky_sim ...] [--variants ...] [--seeds 0 1 2] [--steps 6000]
@@ -109,6 +110,18 @@ def stack_config(setting: str, variant: str, seed: int, steps: int, tmp: Path, f
     return path
 
 
+def step_scale(setting: str) -> float:
+    """The fine-tuning step after a handoff that ``setting``'s config gives (``handoff_step_scale``)."""
+    agent = compose_stack_yaml(ROOT / SETTINGS[setting])["learner"].get("agent") or {}
+    return float(agent.get("handoff_step_scale", 1.0))
+
+
+def stale(run: dict[str, Any]) -> bool:
+    """A run that learned after a handoff at another step than its config's now (runs before the key: 1.0)."""
+    learned_after_handoff = run["variant"] in ("handoff", "fixed_h")
+    return learned_after_handoff and run.get("handoff_step_scale", 1.0) != step_scale(run["setting"])
+
+
 def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -144,6 +157,7 @@ def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | No
         "safety_events": summary["safety_events"],
         **ticks,
         "fixed_h": fixed_h,
+        "handoff_step_scale": step_scale(setting),
     }
 
 
@@ -284,12 +298,12 @@ def main() -> int:
     todo = [(s, v, seed) for s in args.settings for seed in args.seeds for v in args.variants]
     for n, (setting, variant, seed) in enumerate(todo, 1):
         out = run_file(setting, variant, seed)
-        if out.exists():
+        if out.exists() and not stale(json.loads(out.read_text())):
             continue
         fixed_h = None
         if variant == "fixed_h":
             handoff = run_file(setting, "handoff", seed)
-            if not handoff.exists():
+            if not handoff.exists() or stale(json.loads(handoff.read_text())):
                 print(f"[{n}/{len(todo)}] {setting}/fixed_h s{seed}: needs the handoff run first; skipped")
                 continue
             fixed_h = max(1, round(json.loads(handoff.read_text())["mean_H"]))
@@ -305,6 +319,7 @@ def main() -> int:
         out.write_text(json.dumps(run, indent=1))
         print(f"  -> success by quarter {run['success_by_quarter']}, mean H {run['mean_H']}", flush=True)
     runs = [json.loads(p.read_text()) for p in sorted(OUT.glob("*/*.json"))]
+    runs = [r for r in runs if not stale(r)]
     summary = summarise(runs)
     (ROOT / "results" / "handoff.json").write_text(json.dumps(summary, indent=1))
     if summary["rows"]:
