@@ -188,6 +188,8 @@ def learning(episodes: list[dict], segments: list[dict], steps: int) -> dict[str
         "mean_H": float(np.mean(h[:, 1])) if len(h) else None,
         "H_first_500_steps": float(np.mean(early)) if len(early) else None,
         "episodes": len(episodes),
+        # each episode's final hand-to-target distance (success: under 5 cm): how near the misses were
+        "final_distance_m": [round(float(e["info"]["distance"]), 4) for e in episodes],
     }
 
 
