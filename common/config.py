@@ -9,6 +9,7 @@ what is allowed.
 
 from __future__ import annotations
 
+import re
 import types
 import typing
 from pathlib import Path
@@ -34,7 +35,9 @@ class Section(BaseModel):
     ``ValidationError`` (a ``ValueError`` listing each key); :func:`parse` turns it into a ConfigError.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False, use_enum_values=True
+    )
 
     def __init__(self, /, *args: Any, **data: Any) -> None:
         if args:
@@ -145,6 +148,9 @@ def _key(part: Any) -> str:
     return text if text and text.isprintable() and text.strip() == text and "." not in text else repr(text)
 
 
+_ENUM_MEMBER = re.compile(r"<\w+\.\w+: ('[^']*')>")  # pydantic names a Literal's enum members so; YAML's word
+
+
 def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> str:
     """One line per error: ``where: key.path: what is wrong (got X)``, with allowed keys for unknown ones."""
     prefix = f"{where}: " if where else ""
@@ -162,7 +168,8 @@ def describe(exc: ValidationError, model: type[BaseModel], where: str = "") -> s
         got = err.get("input")
         shown = "" if isinstance(got, dict) else f" (got {got!r})"
         # An invariant's own words, without pydantic's "Value error, " in front.
-        msg = str(err["ctx"]["error"]) if err["type"] == "value_error" else err["msg"]
+        own = err["type"] == "value_error"
+        msg = str(err["ctx"]["error"]) if own else _ENUM_MEMBER.sub(r"\1", err["msg"])
         lines.append(f"{prefix}{path}: {'; '.join(msg.splitlines())}{shown}")
     return "\n".join(lines)
 

@@ -19,6 +19,7 @@ from bus.transport import ZenohConfig
 from common.config import Box3, ConfigError, Section, compose_yaml, describe, load_yaml, overlay, parse
 from learner.config import AGENT_CONFIGS
 from learner.registry import Algo
+from learner.segments import Execution
 from monitor.server import MonitorConfig
 from monitor.view_limits import ViewLimits
 from robot_io.config import RobotConfig
@@ -112,7 +113,7 @@ class LearnerConfig(Section):
     # from the actor's stream of executed ticks, wherever it runs (adaptiveh and rkhs only).
     # closed_loop: the learner drives the arm, one action per step sent as a chunk (above): every
     # registry agent, the SB3 baselines included.
-    execution: Literal["closed_loop", "actor"] = "closed_loop"
+    execution: Literal[Execution.CLOSED_LOOP, Execution.ACTOR] = Execution.CLOSED_LOOP
     # The learner's thinking time made real: each chunk (actor: each policy snapshot) is published this
     # late (closed loop: the last chunk's tail plays meanwhile; actor: the actor keeps planning with the
     # snapshot it has).
@@ -136,7 +137,7 @@ class LearnerConfig(Section):
 
     @model_validator(mode="after")
     def _actor_supported(self) -> LearnerConfig:
-        if self.execution == "actor" and self.algo not in ACTOR_ALGOS:
+        if self.execution == Execution.ACTOR and self.algo not in ACTOR_ALGOS:
             raise ValueError(f"execution actor: algo {self.algo} has no actor; use one of {ACTOR_ALGOS}")
         if self.policy_from is not None and self.algo not in ACTOR_ALGOS:
             raise ValueError(
@@ -154,9 +155,9 @@ class LearnerConfig(Section):
     def agent_config(self) -> dict[str, Any]:
         """``agent`` with the execution mode: an actor's agent plans (from the state the arm is in: no
         latency to plan over, the snapshot is what arrives late)."""
-        if self.execution == "closed_loop":
+        if self.execution == Execution.CLOSED_LOOP:
             return dict(self.agent)
-        return {**self.agent, "execution": "plan", "latency_steps": 0}
+        return {**self.agent, "execution": Execution.PLAN.value, "latency_steps": 0}
 
 
 class RecordingConfig(Section):
@@ -323,7 +324,7 @@ class StackConfig(Section):
             if self.arm is not None:
                 raise ValueError(f"arm {self.arm!r}: the config has no fleet section")
             return self
-        if self.learner.execution != "actor":
+        if self.learner.execution != Execution.ACTOR:
             raise ValueError("fleet: needs learner.execution actor (an actor beside each arm)")
         traced = [k for k in PER_EPISODE_TRACES if self.learner.agent.get(k, 0) > 0]
         if traced:

@@ -25,6 +25,7 @@ import typing
 import unicodedata
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -201,8 +202,8 @@ def _yaml(value: Any) -> str:
             return [plain(x) for x in v]
         if isinstance(v, dict):
             return {plain(k): plain(x) for k, x in v.items()}
-        if isinstance(v, Path):
-            return str(v)
+        if isinstance(v, Path | Enum):
+            return str(v.value) if isinstance(v, Enum) else str(v)
         return v
 
     text = yaml.safe_dump(
@@ -229,7 +230,8 @@ def describe_type(annotation: Any, metadata: Iterable[Any] = ()) -> tuple[str, s
             bounds = "; ".join(f"{t}: {b}" for t, b in bounded)
         return " | ".join(dict.fromkeys(t for t, _ in parts)), bounds
     if origin is Literal:
-        kinds = dict.fromkeys(_SCALARS.get(type(v), type(v).__name__) for v in args)
+        values = [v.value if isinstance(v, Enum) else v for v in args]
+        kinds = dict.fromkeys(_SCALARS.get(type(v), type(v).__name__) for v in values)
         return " | ".join(kinds), "one of " + ", ".join(f"`{_yaml(v)}`" for v in args)
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return annotation.__name__, ""

@@ -41,6 +41,7 @@ from learner.protocol import Agent, RunLog
 from learner.registry import make_agent
 from learner.run_archive import RunArchive
 from learner.run_summary import summarize
+from learner.segments import Execution
 
 log = logging.getLogger(__name__)
 TELEMETRY_EVERY = 20  # steps between progress telemetry (1 s at 20 Hz), besides one per episode
@@ -79,7 +80,8 @@ class LearnerNode(Node):
         self.cfg = settings.learner
         self._fresh_control = Fresh()
         super().__init__(settings.bus_key, settings.zenoh, token=control_token, fleet=settings.name)
-        self.stream = self.cfg.execution == "actor"  # learn from an actor's stream; never drive the robot
+        # learn from an actor's stream; never drive the robot
+        self.stream = self.cfg.execution == Execution.ACTOR
         self.env = (
             ReachSpec(env_settings(settings))
             if self.stream

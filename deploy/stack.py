@@ -36,6 +36,7 @@ from deploy.config import ConfigError, load_stack_config
 from deploy.part_env import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.run_report import actor_counts_path, arm_summaries, by_quarter, learning_curve
 from learner.run_summary import h_stats
+from learner.segments import Execution
 from monitor.foxglove.derive import Deriver, SceneSetup
 from monitor.recording import Recorder, parts
 
@@ -135,7 +136,7 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
         needs.append(("pyrealsense2", "vision camera realsense: pip install pyrealsense2"))
     if cfg.zenoh.tls is not None or cfg.zenoh.auth is not None:  # each part's certificate and password
         parts = ["robot_io", "learner"] + [p for p in ("vision", "monitor") if getattr(cfg, p) is not None]
-        parts += ["actor"] if cfg.learner.execution == "actor" else []
+        parts += ["actor"] if cfg.learner.execution == Execution.ACTOR else []
         for identity in ["supervisor", *(PART_IDENTITY[p] for p in parts)]:
             try:
                 zenoh_keys(cfg.zenoh, identity)
@@ -205,7 +206,7 @@ class Stack:
         """Each part's command line, in start order (an arm's parts per arm). The token is not on it
         (``ps`` shows argv to every local user): it reaches the parts through their environment
         (``part_environment``)."""
-        actor = self.cfg.learner.execution == "actor"
+        actor = self.cfg.learner.execution == Execution.ACTOR
         wanted = {
             "robot_io": True,
             "actor": actor,

@@ -43,7 +43,7 @@ from deploy.config import StackConfig
 from deploy.plan_channel import played
 from deploy.robot_link import SUSPENDED, LinkStopped, RobotLink, seen_at, usable
 from learner.plans import Executed, Plan
-from learner.segments import Opening, opening
+from learner.segments import Execution, Opening, opening
 from robot_io.step_cap import cap_step_length
 from tasks.reach import (
     TRACKING,
@@ -106,8 +106,9 @@ def env_settings(cfg: StackConfig) -> EnvSettings:
         target_speed_max=lc.target_speed_max,
         step_timeout_s=lc.step_timeout_s,
         target_timeout_s=lc.target_timeout_s,
-        reads_every_tick=lc.execution == "actor",
-        latency_ms=lc.latency_ms if lc.execution == "closed_loop" else 0.0,  # actor: snapshots arrive late
+        reads_every_tick=lc.execution == Execution.ACTOR,
+        # actor: the snapshots arrive late, not the chunks
+        latency_ms=lc.latency_ms if lc.execution == Execution.CLOSED_LOOP else 0.0,
         robot_model=cfg.robot.model,
         tracking=TRACKING if cfg.robot.tracking is None else ArmTracking(**cfg.robot.tracking.model_dump()),
     )

@@ -41,7 +41,7 @@ from learner.protocol import EpisodeRecord, RunLog, SegmentRecord, StepCallback
 from learner.provenance import TrainedOn, check_handoff, checkpoint_path, trained_on
 from learner.replay import Transition, TransitionWindow
 from learner.retreat import RetreatCheck, SegmentSamples
-from learner.segments import SegmentEnd, segment_end
+from learner.segments import Execution, SegmentEnd, segment_end
 from learner.snapshot import PolicySnapshot
 
 
@@ -139,7 +139,7 @@ class AdaptiveH:
         # Plan execution: the segment loop on a queue in front of the env, this learner its own actor.
         self.channel: QueuedChannel | None = None
         self.acting: SegmentLoop | None = None
-        if cfg.execution == "plan":
+        if cfg.execution == Execution.PLAN:
             self._plan_execution(env)
 
     def _plan_execution(self, env: gym.Env) -> None:

@@ -8,6 +8,7 @@ from pydantic import AfterValidator, Field, model_validator
 
 from common.config import Section
 from learner.retreat import RetreatMode
+from learner.segments import Execution
 
 Positive = Annotated[float, Field(gt=0)]
 Scale = Annotated[float, Field(gt=0, le=1)]
@@ -184,7 +185,7 @@ class AdaptiveHConfig(Section):
     use_discount_factor: bool = True  # the paper's 1/(1-γ) in eq. 8
     # closed_loop: every action sampled at the state it acts in. plan: a segment is a committed plan
     # (learner/plans.py) of up to h_max (AdaptiveH) or fixed_h (RKHS) actions over model-predicted states.
-    execution: Literal["closed_loop", "plan"] = "closed_loop"
+    execution: Literal[Execution.CLOSED_LOOP, Execution.PLAN] = Execution.CLOSED_LOOP
     latency_steps: int = Field(0, ge=0)  # plan mode in-process: a new plan takes effect this many steps late
     plan_score: Literal["executed", "noise"] = Field(
         "executed",
@@ -198,7 +199,7 @@ class AdaptiveHConfig(Section):
         """``retreat``, or the execution's own when it is None."""
         if self.retreat is not None:
             return self.retreat
-        return "plan" if self.execution == "plan" else "local"
+        return "plan" if self.execution == Execution.PLAN else "local"
 
     @model_validator(mode="after")
     def _options_fit_the_critic(self) -> AdaptiveHConfig:
@@ -208,7 +209,7 @@ class AdaptiveHConfig(Section):
             raise ValueError(
                 "advantage_lambda sums TD errors: it needs critic: value, policy_gradient: sampled"
             )
-        if self.replay_window > 0 and (self.critic != "value" or self.execution != "closed_loop"):
+        if self.replay_window > 0 and (self.critic != "value" or self.execution != Execution.CLOSED_LOOP):
             raise ValueError(
                 "replay_window re-scores past samples with the value critic's TD error and their sampling "
                 "policy's likelihood: it needs critic: value, execution: closed_loop"

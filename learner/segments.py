@@ -21,6 +21,15 @@ class SegmentEnd(StrEnum):
 CLOSED = (SegmentEnd.RETREAT, SegmentEnd.H_MAX, SegmentEnd.EPISODE_END)
 
 
+class Execution(StrEnum):
+    """How the product acts, for both configs: the agent's (``learner.agent.execution``: closed loop or
+    plan) and the stack's (``learner.execution``: closed loop or actor, whose agent plans)."""
+
+    CLOSED_LOOP = "closed_loop"  # every action sampled at the state it acts in
+    PLAN = "plan"  # segments are committed plans, run by the segment loop in-process (a local channel)
+    ACTOR = "actor"  # the same loop in an actor beside the arm, on robot-io's channel (the stack)
+
+
 class Opening(StrEnum):
     """Why a plan is made: how the segment before it ended (``opening``), or a hold of robot-io's sender."""
 

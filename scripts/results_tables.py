@@ -165,6 +165,35 @@ def handoff(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def handoff_headline(data: dict[str, Any]) -> str:
+    """``results/handoff.json``, one row per setting (the README's): each start's first and last quarter
+    (medians over seeds, the last quarter's range), and the handoff's H early on against its last quarter."""
+    starts = ("scratch", "handoff", "frozen", "fixed_h")
+    lines = [
+        "| setting | "
+        + " | ".join(f"{s}: first / last quarter %" for s in starts)
+        + " | handoff H, first 500 steps / last quarter |",
+        "|---|" + "---|" * (len(starts) + 1),
+    ]
+    settings = dict.fromkeys(r["setting"] for r in data["rows"])
+    for setting in settings:
+        rows = {r["variant"]: r for r in data["rows"] if r["setting"] == setting}
+        cells = [setting]
+        for start in starts:
+            r = rows.get(start)
+            if r is None:
+                cells.append("not run")
+                continue
+            q = r["success_by_quarter"] or [None] * 4
+            lo, hi = r["last_quarter_range"]
+            cells.append(f"{_pct(q[0])} / {_pct(q[3])} ({_pct(lo)}-{_pct(hi)}; seeds {len(r['seeds'])})")
+        h = rows.get("handoff")
+        last_h = (h["mean_H_by_quarter"] or [None] * 4)[3] if h else None
+        cells.append(f"{_fmt(h['H_first_500_steps'], '.1f')} / {_fmt(last_h, '.1f')}" if h else "-")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def fleet(data: dict[str, Any]) -> str:
     """``results/fleet.json``: per number of arms, the seeds' steps and seconds to 70 % rolling success,
     last-quarter success per arm, the learner's rate and each arm's CPU."""
@@ -213,6 +242,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "stack_robustness": ("results/stack_robustness.json", stack_robustness),
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "handoff": ("results/handoff.json", handoff),
+    "handoff_headline": ("results/handoff.json", handoff_headline),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),

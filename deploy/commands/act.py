@@ -28,10 +28,11 @@ def run(args: argparse.Namespace) -> int:
     from bus.node import run_until_stopped
     from deploy.actor_node import ActorNode
     from deploy.config import load_stack_config
+    from learner.segments import Execution
 
     setup_logging(args.log_level)
     cfg = load_stack_config(args.config, learner={"policy_from": args.policy_from}).for_arm(args.arm)
-    if cfg.learner.execution != "actor":
+    if cfg.learner.execution != Execution.ACTOR:
         logging.error(
             "learner.execution is %r: the learner drives the arm itself, no actor runs", cfg.learner.execution
         )

@@ -47,3 +47,28 @@ def test_the_next_plan_says_how_the_segment_before_ended():
     assert opening(SegmentEnd.EPISODE_END) == Opening.FIRST
     assert opening(SegmentEnd.RETREAT) == Opening.RETREAT
     assert opening("h_max") == Opening.H_MAX
+
+
+def test_both_configs_take_their_execution_modes_from_one_enum():
+    """The agent's modes (closed loop, plan) and the stack's (closed loop, actor) are members of one
+    ``Execution``; a mode of the other config is refused in YAML's words, naming the key."""
+    import typing
+
+    import pytest
+
+    from common.config import ConfigError, parse
+    from deploy.config import LearnerConfig
+    from learner.config import AdaptiveHConfig
+    from learner.segments import Execution
+
+    agent_modes = typing.get_args(AdaptiveHConfig.model_fields["execution"].annotation)
+    stack_modes = typing.get_args(LearnerConfig.model_fields["execution"].annotation)
+    assert set(agent_modes) | set(stack_modes) == set(Execution)
+    assert parse(AdaptiveHConfig, {"execution": "plan"}, "agent").execution == Execution.PLAN
+    with pytest.raises(
+        ConfigError, match=r"agent: execution: Input should be 'closed_loop' or 'plan' \(got 'actor'\)"
+    ):
+        parse(AdaptiveHConfig, {"execution": "actor"}, "agent")
+    stack = LearnerConfig(algo="adaptiveh", execution="actor")
+    assert stack.execution == Execution.ACTOR
+    assert stack.agent_config()["execution"] == Execution.PLAN  # an actor's agent plans
