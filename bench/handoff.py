@@ -304,11 +304,12 @@ def main() -> int:
             continue
         fixed_h = None
         if variant == "fixed_h":
-            handoff = run_file(setting, "handoff", seed)
-            if not handoff.exists() or stale(json.loads(handoff.read_text())):
+            path = run_file(setting, "handoff", seed)
+            handoff = json.loads(path.read_text()) if path.exists() else None
+            if handoff is None or stale(handoff):
                 print(f"[{n}/{len(todo)}] {setting}/fixed_h s{seed}: needs the handoff run first; skipped")
                 continue
-            fixed_h = max(1, round(json.loads(handoff.read_text())["mean_H"]))
+            fixed_h = max(1, round(handoff["mean_H"]))
         print(f"[{n}/{len(todo)}] {setting} / {variant} / seed {seed}", flush=True)
         if setting == "franky_sim":
             from franka_simulators import FrankySimServer

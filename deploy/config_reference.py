@@ -202,8 +202,10 @@ def _yaml(value: Any) -> str:
             return [plain(x) for x in v]
         if isinstance(v, dict):
             return {plain(k): plain(x) for k, x in v.items()}
-        if isinstance(v, Path | Enum):
-            return str(v.value) if isinstance(v, Enum) else str(v)
+        if isinstance(v, Enum):
+            return v.value
+        if isinstance(v, Path):
+            return str(v)
         return v
 
     text = yaml.safe_dump(

@@ -3,11 +3,17 @@ schema, used by the learner in-process and the actor beside the arm."""
 
 from __future__ import annotations
 
+import typing
+
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from bus import messages as m
-from learner.segments import CLOSED, Opening, SegmentEnd, opening, segment_end
+from common.config import ConfigError, parse
+from deploy.config import LearnerConfig
+from learner.config import AdaptiveHConfig
+from learner.segments import CLOSED, Execution, Opening, SegmentEnd, opening, segment_end
 
 
 def _names(enum_type) -> set[str]:
@@ -52,15 +58,6 @@ def test_the_next_plan_says_how_the_segment_before_ended():
 def test_both_configs_take_their_execution_modes_from_one_enum():
     """The agent's modes (closed loop, plan) and the stack's (closed loop, actor) are members of one
     ``Execution``; a mode of the other config is refused in YAML's words, naming the key."""
-    import typing
-
-    import pytest
-
-    from common.config import ConfigError, parse
-    from deploy.config import LearnerConfig
-    from learner.config import AdaptiveHConfig
-    from learner.segments import Execution
-
     agent_modes = typing.get_args(AdaptiveHConfig.model_fields["execution"].annotation)
     stack_modes = typing.get_args(LearnerConfig.model_fields["execution"].annotation)
     assert set(agent_modes) | set(stack_modes) == set(Execution)
