@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -46,6 +47,8 @@ from monitor import recording  # noqa: E402
 
 OUT = ROOT / "results" / "handoff"
 SOURCES = ROOT / "runs" / "handoff_sources"
+SHORT = ROOT / "runs" / "handoff_short"  # recordings of runs under GOAL in the last quarter, to read why
+GOAL = 0.9  # last-quarter success the goals ask of every run
 SETTINGS = {
     "franky_sim": "configs/franka_sim.yaml",
     "slow_arm": "configs/gaps/slow_arm.yaml",
@@ -144,6 +147,8 @@ def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | No
         summary = json.loads((tmp / "summary.json").read_text())
         result = json.loads((tmp / "learner" / "result.json").read_text())
         ticks = control_rate(recording.read(summary["recording"]))
+        learned = learning(result["episodes"], result["segments"], steps)
+        kept = keep_if_short(learned, summary["recording_parts"], setting, variant, seed)
     return {
         "setting": setting,
         "variant": variant,
@@ -151,7 +156,8 @@ def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | No
         "steps": summary["global_step"],
         "wall_clock_s": round(time.time() - t0, 1),
         "started_from": summary["started_from"],
-        **learning(result["episodes"], result["segments"], steps),
+        **learned,
+        "recording_kept": kept,
         "workspace_clips": summary["safety_events"].get("workspace", 0),
         "reflexes": summary["safety_events"].get("driver_error", 0),
         "safety_events": summary["safety_events"],
@@ -159,6 +165,22 @@ def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | No
         "fixed_h": fixed_h,
         "handoff_step_scale": step_scale(setting),
     }
+
+
+def keep_if_short(
+    learned: dict[str, Any], parts: list[str], setting: str, variant: str, seed: int
+) -> str | None:
+    """Keep the recording of a run that ended under ``GOAL`` (``runs/handoff_short/``): what the arm and the
+    learner did is the only way to tell why it fell short (`adaptiveh replay` reads it)."""
+    quarters = learned["success_by_quarter"]
+    if quarters is None or quarters[-1] >= GOAL:
+        return None
+    dest = SHORT / setting
+    dest.mkdir(parents=True, exist_ok=True)
+    first = dest / f"{variant}_s{seed}.mcap"
+    for n, part in enumerate(parts):
+        shutil.copyfile(part, first if n == 0 else recording.part_path(first, n + 1))
+    return str(first.relative_to(ROOT))
 
 
 def learning(episodes: list[dict], segments: list[dict], steps: int) -> dict[str, Any]:
