@@ -16,9 +16,11 @@ Per run: success by quarter, steps until 90 % rolling success (20 episodes), wor
 homing), mean H per quarter, and H over the first 500 steps. Each run is kept in
 ``results/handoff/<setting>/<variant>_s<seed>.json`` and not run again (resumable) unless it learned after
 the handoff at another ``handoff_step_scale`` than its config gives now; ``results/handoff.json``
-and ``results/handoff.png`` summarise whatever has finished. One run at a time.
+and ``results/handoff.png`` summarise whatever has finished. One run at a time. A run under 90 % in its last
+quarter keeps its recording in ``runs/handoff_short/`` (``recording_kept`` in its file).
 
     python bench/handoff.py [--settings franky_sim ...] [--variants ...] [--seeds 0 1 2] [--steps 6000]
+                            [--out results/handoff]
 """
 
 from __future__ import annotations
@@ -241,8 +243,8 @@ def _worst_window_hz(gaps: np.ndarray, window: int = 100) -> float | None:
     return round(float(np.percentile(window / sums, 5)), 2)
 
 
-def run_file(setting: str, variant: str, seed: int) -> Path:
-    return OUT / setting / f"{variant}_s{seed}.json"
+def run_file(out: Path, setting: str, variant: str, seed: int) -> Path:
+    return out / setting / f"{variant}_s{seed}.json"
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -318,15 +320,22 @@ def main() -> int:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=OUT,
+        help="where the runs go (a run there is not made again); the summary and figure go beside it as"
+        " <out>.json and <out>.png. Another length than 6000 steps belongs in another --out",
+    )
     args = ap.parse_args()
     todo = [(s, v, seed) for s in args.settings for seed in args.seeds for v in args.variants]
     for n, (setting, variant, seed) in enumerate(todo, 1):
-        out = run_file(setting, variant, seed)
+        out = run_file(args.out, setting, variant, seed)
         if out.exists() and not stale(json.loads(out.read_text())):
             continue
         fixed_h = None
         if variant == "fixed_h":
-            path = run_file(setting, "handoff", seed)
+            path = run_file(args.out, setting, "handoff", seed)
             handoff = json.loads(path.read_text()) if path.exists() else None
             if handoff is None or stale(handoff):
                 print(f"[{n}/{len(todo)}] {setting}/fixed_h s{seed}: needs the handoff run first; skipped")
@@ -343,12 +352,12 @@ def main() -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(run, indent=1))
         print(f"  -> success by quarter {run['success_by_quarter']}, mean H {run['mean_H']}", flush=True)
-    runs = [json.loads(p.read_text()) for p in sorted(OUT.glob("*/*.json"))]
+    runs = [json.loads(p.read_text()) for p in sorted(args.out.glob("*/*.json"))]
     runs = [r for r in runs if not stale(r)]
     summary = summarise(runs)
-    (ROOT / "results" / "handoff.json").write_text(json.dumps(summary, indent=1))
+    args.out.with_suffix(".json").write_text(json.dumps(summary, indent=1))
     if summary["rows"]:
-        plot(summary, ROOT / "results" / "handoff.png")
+        plot(summary, args.out.with_suffix(".png"))
     print(results_tables.handoff(summary))
     print("python scripts/results_tables.py puts it in the README")
     return 0
