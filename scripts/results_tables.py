@@ -243,6 +243,8 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "handoff": ("results/handoff.json", handoff),
     "handoff_headline": ("results/handoff.json", handoff_headline),
+    "handoff_start": ("results/handoff_start.json", handoff),
+    "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -307,7 +309,20 @@ PAGES: dict[str, Page] = {
         "What a policy trained in simulation brings to franky-sim and to four reality-gap overlays of the"
         " mock, against learning from scratch and a frozen policy: medians over the seeds run.",
         "python bench/handoff.py",
-        (("## By setting and start", "handoff"), ("## Figure", "handoff.png")),
+        (
+            ("## By setting and start", "handoff"),
+            ("## Figure", "handoff.png"),
+            (
+                "## Scratch on franky-sim: the start, 1000 steps (`--seeds 3 4 5 6 --steps 1000 --out"
+                " results/handoff_start`)",
+                "handoff_start",
+            ),
+            (
+                "## Scratch on franky-sim, exploration annealed by step 4000 (tried, not adopted:"
+                " `learner.agent.schedule_steps: 4000`, `--out results/handoff_anneal4000`)",
+                "handoff_anneal4000",
+            ),
+        ),
         "../handoff.md#results",
     ),
     "fleet.md": Page(
