@@ -4,12 +4,16 @@ and on a slower arm (0.1, the slow_arm gap's), learning on or frozen; and from s
 the stack bench takes hours, so a change to how the learner learns after a handoff is seen here first.
 ``--score noise`` (the default) scores each sample as the stack's actor does; ``executed`` as the plans
 experiment's in-process runs did (``learner.agent.plan_score``). ``--handoff-step-scale``: the
-fine-tuning step after the handoff (``learner.agent.handoff_step_scale``).
+fine-tuning step after the handoff (``learner.agent.handoff_step_scale``). ``--schedule-steps``: the
+steps over which the exploration std and the step anneal (``learner.agent.schedule_steps``; default:
+the stack's, 10000; docs/handoff.md, "Where we lose", reads 6000).
 
 Per run: success by quarter of 6000 steps. Each run is appended under its label to
 ``results/handoff_inprocess.json`` (a label run again replaces its runs).
 
     python bench/handoff_inprocess.py [--score noise|executed] [--seeds 0 1 2] [--variants learn ...]
+    python bench/handoff_inprocess.py --variants scratch --seeds $(seq 0 13) --schedule-steps 6000 \
+        --label "scratch, schedule 6000"
 """
 
 from __future__ import annotations
@@ -37,10 +41,8 @@ STEPS = 6000
 GAINS = {"trained_world": 0.3, "slow_arm": 0.1}  # robot.mock.position_gain: configs/gaps/slow_arm.yaml's
 
 
-def run(seed: int, variant: str, gain: float, score: str, step_scale: float) -> dict[str, Any]:
-    agent_cfg = load_stack_config(ROOT / "configs" / "sim.yaml").learner.agent_config()
-    agent_cfg["plan_score"] = score
-    agent_cfg["handoff_step_scale"] = step_scale
+def run(seed: int, variant: str, gain: float, agent: dict[str, Any]) -> dict[str, Any]:
+    agent_cfg = load_stack_config(ROOT / "configs" / "sim.yaml").learner.agent_config() | agent
     if variant == "frozen":
         agent_cfg["frozen"] = True
     env = gym.make("NSReach-v0", motion="slow", max_episode_steps=50, seed=seed)
@@ -63,6 +65,7 @@ def main() -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
     ap.add_argument("--handoff-step-scale", type=float, default=1.0, help="agent.handoff_step_scale")
+    ap.add_argument("--schedule-steps", type=int, default=None, help="agent.schedule_steps")
     args = ap.parse_args()
     args.label = args.label or f"{args.score} score"
     import learner
@@ -73,12 +76,13 @@ def main() -> int:
     data["runs"] = [r for r in data["runs"] if r["label"] != args.label]
     for variant in args.variants:
         for world, gain in GAINS.items():
-            if variant == "scratch" and world != "trained_world":
-                continue
             for seed in args.seeds:
                 row = {"label": args.label, "commit": commit.strip(), "variant": variant, "world": world}
                 row |= {"seed": seed, "score": args.score, "handoff_step_scale": args.handoff_step_scale}
-                row |= run(seed, variant, gain, args.score, args.handoff_step_scale)
+                agent = {"plan_score": args.score, "handoff_step_scale": args.handoff_step_scale}
+                if args.schedule_steps is not None:
+                    agent["schedule_steps"] = row["schedule_steps"] = args.schedule_steps
+                row |= run(seed, variant, gain, agent)
                 print(json.dumps(row), flush=True)
                 data["runs"].append(row)
     OUT.write_text(json.dumps(data, indent=1))
