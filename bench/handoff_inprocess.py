@@ -4,15 +4,15 @@ and on a slower arm (0.1, the slow_arm gap's), learning on or frozen; and from s
 the stack bench takes hours, so a change to how the learner learns after a handoff is seen here first.
 ``--score noise`` (the default) scores each sample as the stack's actor does; ``executed`` as the plans
 experiment's in-process runs did (``learner.agent.plan_score``). ``--handoff-step-scale``: the
-fine-tuning step after the handoff (``learner.agent.handoff_step_scale``). ``--schedule-steps``: the
-steps over which the exploration std and the step anneal (``learner.agent.schedule_steps``; default:
-the stack's, 10000; docs/handoff.md, "Where we lose", reads 6000).
+fine-tuning step after the handoff (``learner.agent.handoff_step_scale``). ``--agent KEY=VALUE``: any
+other agent key over the stack's (``learner.agent``; YAML values), e.g. the exploration schedule
+(docs/handoff.md, "Where we lose", reads ``schedule_steps`` and ``schedule_gate``).
 
 Per run: success by quarter of 6000 steps. Each run is appended under its label to
 ``results/handoff_inprocess.json`` (a label run again replaces its runs).
 
     python bench/handoff_inprocess.py [--score noise|executed] [--seeds 0 1 2] [--variants learn ...]
-    python bench/handoff_inprocess.py --variants scratch --seeds $(seq 0 13) --schedule-steps 6000 \
+    python bench/handoff_inprocess.py --variants scratch --seeds $(seq 0 13) --agent schedule_steps=6000 \
         --label "scratch, schedule 6000"
 """
 
@@ -27,6 +27,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import yaml
 
 import tasks  # noqa: F401  (registers NSReach-v0)
 from deploy.config import load_stack_config
@@ -58,6 +59,14 @@ def run(seed: int, variant: str, gain: float, agent: dict[str, Any]) -> dict[str
     return {"success_by_quarter": [round(float(np.mean(q)), 3) for q in quarters]}
 
 
+def agent_override(kv: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` (VALUE read as YAML) of ``--agent``."""
+    key, sep, value = kv.partition("=")
+    if not sep:
+        raise SystemExit(f"--agent {kv!r}: expected KEY=VALUE")
+    return key, yaml.safe_load(value)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--score", default="noise", choices=["noise", "executed"], help="agent.plan_score")
@@ -65,9 +74,10 @@ def main() -> int:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
     ap.add_argument("--handoff-step-scale", type=float, default=1.0, help="agent.handoff_step_scale")
-    ap.add_argument("--schedule-steps", type=int, default=None, help="agent.schedule_steps")
+    ap.add_argument("--agent", nargs="*", default=[], metavar="KEY=VALUE", help="learner.agent keys (YAML)")
     args = ap.parse_args()
     args.label = args.label or f"{args.score} score"
+    overrides = dict(agent_override(kv) for kv in args.agent)
     import learner
 
     tree = Path(learner.__file__).resolve().parents[1]
@@ -79,9 +89,9 @@ def main() -> int:
             for seed in args.seeds:
                 row = {"label": args.label, "commit": commit.strip(), "variant": variant, "world": world}
                 row |= {"seed": seed, "score": args.score, "handoff_step_scale": args.handoff_step_scale}
-                agent = {"plan_score": args.score, "handoff_step_scale": args.handoff_step_scale}
-                if args.schedule_steps is not None:
-                    agent["schedule_steps"] = row["schedule_steps"] = args.schedule_steps
+                if overrides:
+                    row["agent"] = overrides
+                agent = {"plan_score": args.score, "handoff_step_scale": args.handoff_step_scale} | overrides
                 row |= run(seed, variant, gain, agent)
                 print(json.dumps(row), flush=True)
                 data["runs"].append(row)

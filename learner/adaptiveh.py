@@ -30,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 
 from learner.acting import PolicyPlanner, SegmentLoop
-from learner.config import AdaptiveHConfig, rkhs_config
+from learner.config import GATE_EPISODES, AdaptiveHConfig, rkhs_config
 from learner.critic import KLSTDCritic
 from learner.kernels import GaussianKernel
 from learner.normalizer import StateNormalizer
@@ -121,6 +121,7 @@ class AdaptiveH:
         # exploration and step-size schedules on from where the source left them.
         self.started_from: dict | None = None
         self.schedule_offset = 0
+        self.gated_steps = 0  # with schedule_gate: the steps of episodes that ended with the gate open
         # Learning from actors: each actor stream's transitions learned, in order (deploy.transition_stream);
         # saved with the policy, so a resumed learner asks for exactly what it lacks.
         self.stream_marks: dict[str, int] = {}
@@ -486,11 +487,24 @@ class AdaptiveH:
         a policy still moving at full step and full noise late in a run swings between good and bad. After
         a handoff the step is ``handoff_step_scale`` of it."""
         cfg = self.config
-        frac = min((self.schedule_offset + self.log.global_step) / cfg.schedule_steps, 1.0)
+        frac = min((self.schedule_offset + self.schedule_clock()) / cfg.schedule_steps, 1.0)
         alpha = cfg.alpha if cfg.alpha_final is None else cfg.alpha + (cfg.alpha_final - cfg.alpha) * frac
         self.alpha = alpha * (cfg.handoff_step_scale if self.started_from is not None else 1.0)
         if cfg.sigma_final is not None:
             self.policy.explore((cfg.sigma + (cfg.sigma_final - cfg.sigma) * frac) * self.policy.half_range)
+
+    def schedule_clock(self) -> int:
+        """The steps this run's schedule has gone: every step, or with ``schedule_gate`` only those of
+        episodes that ended with the gate open."""
+        return self.log.global_step if self.config.schedule_gate is None else self.gated_steps
+
+    def _gate(self, length: int) -> None:
+        """An episode of ``length`` steps ended: with ``schedule_gate``, its steps count on the schedule when
+        the success rate of the last ``GATE_EPISODES`` episodes is at or above the gate."""
+        gate = self.config.schedule_gate
+        recent = [e.success for e in self.log.episodes[-GATE_EPISODES:]]
+        if gate is not None and len(recent) == GATE_EPISODES and np.mean(recent) >= gate:
+            self.gated_steps += length
 
     def _close_segment(self, reason: str, arm: str = "") -> SegmentRecord | None:
         """Update the policy with the segment's gradients when ``reason`` closes it (``open``: nothing)."""
@@ -549,6 +563,7 @@ class AdaptiveH:
                 arm=arm,
             )
         )
+        self._gate(length)
         self._obs = None
 
     # -- checkpoints ----------------------------------------------------------------------------
@@ -577,6 +592,8 @@ class AdaptiveH:
             "trained_on": self.trained_on.to_dict(),
             "started_from": self.started_from,
             "schedule_offset": self.schedule_offset,
+            "schedule_clock": self.schedule_clock(),
+            "gated_steps": self.gated_steps,
             "stream_marks": dict(self.stream_marks),
             "streams": {
                 k: (p.arm, p.segment.states, p.segment.grads, p.segment.trace, p.ret, p.length)
@@ -597,6 +614,7 @@ class AdaptiveH:
         self.nonfinite_skipped = state["nonfinite_skipped"]
         self.started_from = state.get("started_from")
         self.schedule_offset = state.get("schedule_offset", 0)
+        self.gated_steps = state.get("gated_steps", 0)
         self.stream_marks = dict(state.get("stream_marks", {}))
         self.streams = {
             k: StreamProgress(arm, SegmentSamples(list(states), list(grads), list(trace)), ret, length)
@@ -644,8 +662,9 @@ class AdaptiveH:
         self.policy.f.load_state_dict(state["policy"])
         self.critic.load_state_dict(state["critic"])
         self.retreat.start_from(state["retreat"])
-        steps = int(state["log"]["global_step"]) + int(state.get("schedule_offset", 0))
-        self.schedule_offset = steps
+        offset = int(state.get("schedule_offset", 0))
+        steps = int(state["log"]["global_step"]) + offset
+        self.schedule_offset = int(state.get("schedule_clock", state["log"]["global_step"])) + offset
         self.started_from = {
             "path": str(ckpt),
             "algo": state["name"],

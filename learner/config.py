@@ -12,6 +12,7 @@ from learner.segments import Execution
 
 Positive = Annotated[float, Field(gt=0)]
 Scale = Annotated[float, Field(gt=0, le=1)]
+GATE_EPISODES = 20  # the episodes whose success rate opens ``schedule_gate``
 
 
 class AdaptiveHConfig(Section):
@@ -45,6 +46,14 @@ class AdaptiveHConfig(Section):
         20000,
         ge=1,
         description="environment steps over which sigma and alpha go linearly to sigma_final and alpha_final",
+    )
+    schedule_gate: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="the schedule runs only through episodes that end with the success rate of the last"
+        f" {GATE_EPISODES} at or above this (null: through every step): a start that has not yet learned"
+        " keeps its full exploration",
     )
     bandwidth: Positive | list[Positive] = 0.4  # on states normalised to [-1, 1]; one or one per dimension
     policy_budget: int = Field(

@@ -43,3 +43,38 @@ def test_the_score_keeps_the_initial_inverse_covariance():
     raw = policy.mean(s) + 0.3
     initial_inv2 = 1.0 / (0.4 * policy.half_range) ** 2
     np.testing.assert_allclose(policy.score(s, raw), policy.half_range * initial_inv2 * 0.3)
+
+
+def _episodes(agent: AdaptiveH, successes: list[bool], length: int = 10) -> None:
+    for success in successes:
+        agent.log.global_step += length
+        agent._finish_episode({"success": float(success)}, -1.0, length)
+
+
+def test_a_gated_schedule_runs_only_through_episodes_that_end_with_the_gate_open():
+    agent = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=200, schedule_gate=0.5)
+    _episodes(agent, [True] * 19)  # no full window of 20 episodes yet
+    _episodes(agent, [False] * 20)  # 19 of the last 20 succeeded, 18, ..., 10 (open), then 9 ... 0: shut
+    assert agent.gated_steps == 100
+    _episodes(agent, [True] * 12)  # 1 ... 9 of 20: shut; 10, 11, 12: open
+    assert agent.gated_steps == 130 and agent.schedule_clock() == 130 and agent.log.global_step == 510
+    agent._schedule()
+    np.testing.assert_allclose(agent.policy.sigma, (0.4 - 0.3 * 130 / 200) * agent.policy.half_range)
+
+
+def test_without_a_gate_the_schedule_runs_through_every_step():
+    agent = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=100)
+    _episodes(agent, [False] * 3)
+    assert agent.schedule_clock() == 30 and agent.gated_steps == 0
+
+
+def test_the_gated_clock_is_checkpointed_and_carries_a_handoff_on(tmp_path):
+    agent = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=100, schedule_gate=0.5)
+    _episodes(agent, [True] * 22)
+    agent.save(tmp_path / "checkpoint.pkl")
+    resumed = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=100, schedule_gate=0.5)
+    resumed.load(tmp_path / "checkpoint.pkl")
+    assert resumed.schedule_clock() == 30
+    handed = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=100)
+    came = handed.start_from(tmp_path / "checkpoint.pkl")
+    assert came["steps"] == 220 and handed.schedule_offset == 30  # trained 220 steps, 30 of them gated
