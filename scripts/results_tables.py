@@ -245,6 +245,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_headline": ("results/handoff.json", handoff_headline),
     "handoff_start": ("results/handoff_start.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
+    "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -321,6 +322,11 @@ PAGES: dict[str, Page] = {
                 "## Scratch on franky-sim, exploration annealed by step 4000 (tried, not adopted:"
                 " `learner.agent.schedule_steps: 4000`, `--out results/handoff_anneal4000`)",
                 "handoff_anneal4000",
+            ),
+            (
+                "## Scratch on franky-sim, exploration annealed over 10000 steps, ungated (the default until"
+                " `schedule_gate`; `--out results/handoff_schedule10000`)",
+                "handoff_schedule10000",
             ),
         ),
         "../handoff.md#results",
