@@ -79,6 +79,22 @@ class LearnerConfig(Section):
         description="the fastest the target moves (m/s): the learner scales the target's velocity in its"
         " state by it",
     )
+    # The policy's scales, with target_box and target_speed_max: a policy is a function of its scaled
+    # state and action, so an arm whose box or step is tighter than the simulator's keeps the simulator's
+    # here to run the simulator's policy (--policy-from refuses a checkpoint of other scales), while
+    # robot-io holds the arm to its own robot.workspace and robot.max_step_m.
+    state_workspace: Box3 | None = Field(
+        None,
+        description="the box the policy's state scales the hand's position by, as the policy was trained"
+        " (null: robot.workspace); robot-io still holds the arm to robot.workspace",
+    )
+    action_step_m: float | None = Field(
+        None,
+        gt=0,
+        le=0.05,
+        description="the policy's largest step per axis (m), as it was trained (null: robot.max_step_m);"
+        " what is sent is still capped at robot.max_step_m",
+    )
     step_timeout_s: float = Field(
         2.0,
         gt=0,

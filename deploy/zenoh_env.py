@@ -73,7 +73,10 @@ class EnvSettings:
 
     workspace_lo: tuple[float, ...]
     workspace_hi: tuple[float, ...]
-    max_step_m: float
+    max_step_m: float  # robot-io's: what is sent is capped at it
+    state_lo: tuple[float, ...]  # the policy's scales (learner.state_workspace, learner.action_step_m)
+    state_hi: tuple[float, ...]
+    action_step_m: float
     control_rate_hz: float
     max_episode_steps: int
     chunk_len: int
@@ -93,10 +96,14 @@ class EnvSettings:
 def env_settings(cfg: StackConfig) -> EnvSettings:
     """The reach env over Zenoh: the robot's workspace, step and rate, and the learner's task settings."""
     lc = cfg.learner
+    scaled_box = lc.state_workspace or (cfg.robot.workspace.lo, cfg.robot.workspace.hi)
     return EnvSettings(
         workspace_lo=cfg.robot.workspace.lo,
         workspace_hi=cfg.robot.workspace.hi,
         max_step_m=cfg.robot.max_step_m,
+        state_lo=scaled_box[0],
+        state_hi=scaled_box[1],
+        action_step_m=lc.action_step_m or cfg.robot.max_step_m,
         control_rate_hz=cfg.robot.control_rate_hz,
         max_episode_steps=lc.max_episode_steps,
         chunk_len=lc.chunk_len,
@@ -134,15 +141,19 @@ class ReachSpec(gym.Env):
 
     def __init__(self, settings: EnvSettings) -> None:
         self.settings = settings
-        lo, hi = settings.workspace_lo, settings.workspace_hi
         low, high, self.obs_bounds = reach_observation_bounds(
-            lo, hi, settings.target_lo, settings.target_hi, settings.target_speed_max
+            settings.state_lo,
+            settings.state_hi,
+            settings.target_lo,
+            settings.target_hi,
+            settings.target_speed_max,
         )
         self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
-        s = settings.max_step_m
+        s = settings.action_step_m
         self.action_space = gym.spaces.Box(-s, s, shape=(3,), dtype=np.float32)
         self.period = 1.0 / settings.control_rate_hz
-        self.workspace = (np.asarray(lo, float), np.asarray(hi, float))  # robot-io's box for the goal
+        # robot-io's box for the goal
+        self.workspace = (np.asarray(settings.workspace_lo, float), np.asarray(settings.workspace_hi, float))
 
     def task_record(self) -> tuple:
         """What a checkpoint of a policy learned here records (``learner.provenance``)."""

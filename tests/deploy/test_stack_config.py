@@ -104,6 +104,28 @@ def test_the_learner_env_takes_the_robots_workspace_rate_and_step(tmp_path):
     assert (env.max_step_m, env.control_rate_hz) == (0.02, 10.0)
 
 
+def test_the_policys_scales_can_be_the_simulators_on_a_tighter_arm(tmp_path):
+    """``learner.state_workspace`` and ``learner.action_step_m`` scale the policy's state and action as the
+    simulator's did (configs/franka_realsense.yaml: its policy runs there); robot-io's box and step still
+    bound what the plan model predicts and what is sent. Unset, the scales are the robot's."""
+    from deploy.zenoh_env import ReachSpec
+
+    sim = ReachSpec(env_settings(load_stack_config(SIM)))
+    data = compose_stack_yaml(SIM)
+    data["robot"].update(workspace={"lo": [0.3, -0.3, 0.1], "hi": [0.7, 0.3, 0.6]}, max_step_m=0.03)
+    tight = ReachSpec(env_settings(load_stack_config(_write(tmp_path, yaml.safe_dump(data)))))
+    data["learner"].update(state_workspace=[[0.2, -0.45, 0.05], [0.8, 0.45, 0.7]], action_step_m=0.05)
+    scaled = ReachSpec(env_settings(load_stack_config(_write(tmp_path, yaml.safe_dump(data)))))
+    assert tight.action_space.high[0] == np.float32(0.03)
+    assert tight.observation_space != sim.observation_space
+    assert scaled.observation_space == sim.observation_space and scaled.action_space == sim.action_space
+    np.testing.assert_allclose(scaled.workspace, ((0.3, -0.3, 0.1), (0.7, 0.3, 0.6)))
+    obs = np.zeros(15)
+    obs[0:3] = (0.5, 0.0, 0.4)
+    step = scaled.predict_next(obs, np.array([0.05, 0.0, 0.0]))[0] - 0.5
+    assert 0.0 < step <= 0.03 + 1e-12  # the arm moves at most robot.max_step_m
+
+
 def _stack_configs() -> list[Path]:
     """Every YAML in configs/ that describes a stack (the training-run files have ``env:`` instead)."""
     return sorted(p for p in CONFIGS.glob("*.yaml") if "env" not in yaml.safe_load(p.read_text()))

@@ -64,6 +64,16 @@ def test_the_stack_on_franky_sim_starts_from_the_mock_policy(trained):
     np.testing.assert_allclose(agent.policy.sigma, source.policy.sigma)
 
 
+def test_the_real_arm_starts_from_the_simulators_policy(trained):
+    """configs/franka_realsense.yaml keeps the simulator's scales (``learner.state_workspace``,
+    ``action_step_m``), so the policy trained in simulation and rehearsed on franky-sim runs on the arm."""
+    path, source, observations = trained
+    agent = AdaptiveH(stack_spec("configs/franka_realsense.yaml"), AGENT, seed=0)
+    assert agent.start_from(path)["steps"] == 150
+    for obs in observations:
+        np.testing.assert_array_equal(agent.predict(obs), source.predict(obs))
+
+
 @pytest.mark.parametrize(
     ("field", "change"),
     [
