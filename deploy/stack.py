@@ -32,7 +32,7 @@ from bus.signing import mac_key
 from bus.transport import Bus, open_session
 from common.errors import AdaptiveHError
 from common.heap import ALLOCATOR_ENV
-from deploy.config import ConfigError, load_stack_config
+from deploy.config import ConfigError, StackConfig, load_stack_config
 from deploy.part_env import SUPERVISOR_ENV, TOKEN_ENV
 from deploy.run_report import actor_counts_path, arm_summaries, by_quarter, learning_curve
 from learner.run_summary import h_stats
@@ -115,10 +115,13 @@ def private_log(path: Path, append: bool) -> IO[str]:
     return fh
 
 
-def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]:
-    """Validate every section and look for the drivers the config needs; moves nothing."""
+def check(
+    config: str | Path, probe_arm: bool = False, policy_from: str | None = None
+) -> tuple[bool, list[str]]:
+    """Validate every section, look for the drivers the config needs and check the policy it would start
+    from (``learner.policy_from``, or ``policy_from``); moves nothing."""
     try:
-        cfg = load_stack_config(config)
+        cfg = load_stack_config(config, learner={"policy_from": policy_from})
     except ConfigError as exc:
         return False, [f"config error: {exc}"]
     camera = f"vision camera {cfg.vision.camera}" if cfg.vision is not None else "no vision"
@@ -144,6 +147,10 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
             except ConfigError as exc:
                 ok = False
                 lines.append(f"MISSING for zenoh identity {identity}: {exc}")
+    if cfg.learner.policy_from is not None:
+        policy_ok, policy_line = _policy_report(cfg)
+        ok &= policy_ok
+        lines.append(policy_line)
     for module, why in needs:
         if importlib.util.find_spec(module) is None:
             ok = False
@@ -152,6 +159,22 @@ def check(config: str | Path, probe_arm: bool = False) -> tuple[bool, list[str]]
             lines.append(f"driver {module}: installed")
     lines.append("nothing was started and nothing moved" + ("" if ok else "; fix the MISSING items first"))
     return ok, lines
+
+
+def _policy_report(cfg: StackConfig) -> tuple[bool, str]:
+    """Whether the learner would start from ``learner.policy_from``, as it will check it, and the line
+    that says so."""
+    from deploy.handoff import check_policy_source
+
+    source = cfg.learner.policy_from
+    try:
+        came = check_policy_source(cfg)
+    except (AdaptiveHError, FileNotFoundError, ValueError) as exc:  # as run() refuses it
+        return False, f"MISSING a policy the learner accepts at {source}: {exc}"
+    if came is None:
+        return True, f"policy {source}: not used, the learner resumes {cfg.learner.checkpoint_dir}"
+    arm = f", arm {came['arm']}" if came["arm"] else ""
+    return True, f"policy {source}: accepted ({came['trained_on']}, {came['steps']} steps{arm})"
 
 
 class Stack:

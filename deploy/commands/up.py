@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
     setup_logging(args.log_level)
     if args.check:
-        ok, lines = check(args.config, probe_arm=args.probe_arm)
+        ok, lines = check(args.config, probe_arm=args.probe_arm, policy_from=args.policy_from)
         for line in lines:
             print(line)
         return 0 if ok else 1

@@ -65,3 +65,46 @@ def test_sim_camera_on_a_real_arm_is_refused(tmp_path):
     bad.write_text(yaml.safe_dump(cfg))
     out = _check(str(bad))
     assert out.returncode == 1 and "this robot has none: use realsense" in out.stdout
+
+
+@pytest.fixture(scope="module")
+def reach_checkpoint(tmp_path_factory) -> Path:
+    """A run folder holding AdaptiveH's checkpoint after 60 steps of in-process NS Reach."""
+    from learner.adaptiveh import AdaptiveH
+    from learner.config import AdaptiveHConfig
+    from tasks.reach_env import NSReachEnv
+
+    env = NSReachEnv(motion="slow", max_episode_steps=30)
+    agent = AdaptiveH(env, AdaptiveHConfig(policy_budget=20, critic_budget=20), seed=0)
+    agent.learn(60)
+    run = tmp_path_factory.mktemp("reach")
+    agent.save(run / "checkpoint.pkl")
+    env.close()
+    return run
+
+
+def _fresh(config: str, tmp_path: Path, **learner) -> Path:
+    """``config`` with its learner's checkpoint folder in ``tmp_path`` (nothing there to resume)."""
+    path = tmp_path / "overlay.yaml"
+    overlay = {
+        "base": str(Path(config).resolve()),
+        "learner": {"checkpoint_dir": str(tmp_path / "l"), **learner},
+    }
+    path.write_text(yaml.safe_dump(overlay))
+    return path
+
+
+def test_the_check_says_whether_the_learner_accepts_the_policy(reach_checkpoint, tmp_path):
+    """``--check --policy-from``: the policy the learner would start from is checked as it will check it;
+    the real arm's config accepts the simulator's policy (its scales are the simulator's)."""
+    out = _check(
+        str(_fresh("configs/franka_realsense.yaml", tmp_path)), "--policy-from", str(reach_checkpoint)
+    )
+    assert (
+        f"policy {reach_checkpoint}: accepted (NSReach-v0 (in-process, PyBullet mock), 60 steps" in out.stdout
+    )
+    tight = _fresh("configs/franka_realsense.yaml", tmp_path, state_workspace=None, action_step_m=None)
+    out = _check(str(tight), "--policy-from", str(reach_checkpoint))  # the arm's own scales
+    assert "MISSING a policy the learner accepts" in out.stdout and "observation_low differs" in out.stdout
+    out = _check(str(_fresh("configs/sim.yaml", tmp_path)), "--policy-from", str(tmp_path / "none"))
+    assert out.returncode == 1 and "no checkpoint at" in out.stdout
