@@ -247,6 +247,11 @@ def run_file(out: Path, setting: str, variant: str, seed: int) -> Path:
     return out / setting / f"{variant}_s{seed}.json"
 
 
+def other_lengths(out: Path, steps: int) -> list[Path]:
+    """The runs in ``out`` of another length than ``steps``: one summary would mix them."""
+    return [p for p in sorted(out.glob("*/*.json")) if json.loads(p.read_text())["steps"] != steps]
+
+
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """Per setting and variant: medians over seeds (and their ranges)."""
     rows = []
@@ -325,9 +330,15 @@ def main() -> int:
         type=Path,
         default=OUT,
         help="where the runs go (a run there is not made again); the summary and figure go beside it as"
-        " <out>.json and <out>.png. Another length than 6000 steps belongs in another --out",
+        " <out>.json and <out>.png; runs of another length there are named and refused",
     )
     args = ap.parse_args()
+    if mixed := other_lengths(args.out, args.steps):
+        names = ", ".join(str(p.relative_to(args.out)) for p in mixed[:3]) + (
+            ", ..." if len(mixed) > 3 else ""
+        )
+        print(f"{args.out} holds runs of another length than {args.steps} steps ({names}): use another --out")
+        return 2
     todo = [(s, v, seed) for s in args.settings for seed in args.seeds for v in args.variants]
     for n, (setting, variant, seed) in enumerate(todo, 1):
         out = run_file(args.out, setting, variant, seed)

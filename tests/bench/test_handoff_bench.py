@@ -42,3 +42,14 @@ def test_a_run_that_met_the_goal_keeps_nothing(tmp_path, monkeypatch):
     monkeypatch.setattr(bench, "SHORT", tmp_path / "short")
     kept = bench.keep_if_short({"success_by_quarter": [0.3, 0.8, 0.9, 0.9]}, [], "slow_arm", "handoff", 0)
     assert kept is None and not (tmp_path / "short").exists()
+
+
+def test_runs_of_another_length_are_named_not_mixed(tmp_path):
+    """One --out folder holds runs of one length: the bench names those of another before running any."""
+    bench = load_bench()
+    for name, steps in (("scratch_s0", 6000), ("scratch_s1", 1000)):
+        path = bench.run_file(tmp_path, "franky_sim", *name.split("_s"))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f'{{"steps": {steps}}}')
+    assert bench.other_lengths(tmp_path, 6000) == [tmp_path / "franky_sim" / "scratch_s1.json"]
+    assert bench.other_lengths(tmp_path, 1000) == [tmp_path / "franky_sim" / "scratch_s0.json"]
