@@ -48,7 +48,7 @@ def run(seed: int, variant: str, gain: float, agent: dict[str, Any]) -> dict[str
         agent_cfg["frozen"] = True
     env = gym.make("NSReach-v0", motion="slow", max_episode_steps=50, seed=seed)
     env.unwrapped.scene.position_gain = gain
-    agent = make_agent("adaptiveh", env, seed, agent_cfg)
+    agent = make_agent("rkhs" if variant == "fixed_h" else "adaptiveh", env, seed, agent_cfg)
     if variant != "scratch":
         agent.start_from(source_policy(seed))
     agent.learn(STEPS)
@@ -72,7 +72,13 @@ def main() -> int:
     ap.add_argument("--score", default="noise", choices=["noise", "executed"], help="agent.plan_score")
     ap.add_argument("--label", default=None, help="the runs' label (default: the score)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    ap.add_argument("--variants", nargs="+", default=["learn", "frozen", "scratch"])
+    ap.add_argument(
+        "--variants",
+        nargs="+",
+        default=["learn", "frozen", "scratch"],
+        choices=["learn", "frozen", "scratch", "fixed_h"],
+        help="fixed_h: handed off and learning with segments of agent.fixed_h steps (the RKHS baseline)",
+    )
     ap.add_argument("--handoff-step-scale", type=float, default=1.0, help="agent.handoff_step_scale")
     ap.add_argument("--agent", nargs="*", default=[], metavar="KEY=VALUE", help="learner.agent keys (YAML)")
     args = ap.parse_args()
