@@ -502,8 +502,12 @@ class AdaptiveH:
         """An episode of ``length`` steps ended: with ``schedule_gate``, its steps count on the schedule when
         the success rate of the last ``GATE_EPISODES`` episodes is at or above the gate."""
         gate = self.config.schedule_gate
+        if gate is None:
+            return
         recent = [e.success for e in self.log.episodes[-GATE_EPISODES:]]
-        if gate is not None and len(recent) == GATE_EPISODES and np.mean(recent) >= gate:
+        if recent[-1] is None:
+            raise ValueError("schedule_gate: this env's episodes report no success to open the gate on")
+        if len(recent) == GATE_EPISODES and np.mean(recent) >= gate:
             self.gated_steps += length
 
     def _close_segment(self, reason: str, arm: str = "") -> SegmentRecord | None:

@@ -78,3 +78,9 @@ def test_the_gated_clock_is_checkpointed_and_carries_a_handoff_on(tmp_path):
     handed = _agent(sigma=0.4, sigma_final=0.1, schedule_steps=100)
     came = handed.start_from(tmp_path / "checkpoint.pkl")
     assert came["steps"] == 220 and handed.schedule_offset == 30  # trained 220 steps, 30 of them gated
+
+
+def test_a_gate_on_an_env_without_success_is_an_error():
+    agent = _agent(sigma=0.4, sigma_final=0.1, schedule_gate=0.5)  # NS CartPole reports no success
+    with pytest.raises(ValueError, match="report no success"):
+        agent.learn(600)
