@@ -246,6 +246,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_start": ("results/handoff_start.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
+    "handoff_hmax20": ("results/handoff_hmax20.json", handoff),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -327,6 +328,11 @@ PAGES: dict[str, Page] = {
                 "## Scratch on franky-sim, exploration annealed over 10000 steps, ungated (the default until"
                 " `schedule_gate`; `--out results/handoff_schedule10000`)",
                 "handoff_schedule10000",
+            ),
+            (
+                "## Handoff on franky-sim with segments of at most 20 steps (tried, not adopted:"
+                " `learner.agent.h_max: 20`, `--out results/handoff_hmax20`)",
+                "handoff_hmax20",
             ),
         ),
         "../handoff.md#results",
