@@ -6,10 +6,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from common.errors import AdaptiveHError
 from deploy.config import StackConfig
 from deploy.zenoh_env import ReachSpec, env_settings
 from learner.provenance import checkpoint_path
 from learner.registry import make_agent
+
+REFUSED = (AdaptiveHError, FileNotFoundError, ValueError)  # what check_policy_source raises for a bad source
 
 
 def check_policy_source(settings: StackConfig) -> dict[str, Any] | None:

@@ -30,7 +30,6 @@ from bus import messages as m
 from bus.security import IDENTITY_ENV, PART_IDENTITY, zenoh_keys
 from bus.signing import mac_key
 from bus.transport import Bus, open_session
-from common.errors import AdaptiveHError
 from common.heap import ALLOCATOR_ENV
 from deploy.config import ConfigError, StackConfig, load_stack_config
 from deploy.part_env import SUPERVISOR_ENV, TOKEN_ENV
@@ -164,12 +163,12 @@ def check(
 def _policy_report(cfg: StackConfig) -> tuple[bool, str]:
     """Whether the learner would start from ``learner.policy_from``, as it will check it, and the line
     that says so."""
-    from deploy.handoff import check_policy_source
+    from deploy.handoff import REFUSED, check_policy_source
 
     source = cfg.learner.policy_from
     try:
         came = check_policy_source(cfg)
-    except (AdaptiveHError, FileNotFoundError, ValueError) as exc:  # as run() refuses it
+    except REFUSED as exc:  # as run() refuses it
         return False, f"MISSING a policy the learner accepts at {source}: {exc}"
     if came is None:
         return True, f"policy {source}: not used, the learner resumes {cfg.learner.checkpoint_dir}"
@@ -334,11 +333,11 @@ class Stack:
             time.sleep(0.2)
 
     def run(self) -> dict[str, Any]:
-        from deploy.handoff import check_policy_source  # the learner's own check, loaded when run
+        from deploy.handoff import REFUSED, check_policy_source  # the learner's own check, loaded when run
 
         try:
             self.handoff = check_policy_source(self.cfg)
-        except (AdaptiveHError, FileNotFoundError, ValueError) as exc:
+        except REFUSED as exc:
             raise RuntimeError(str(exc)) from None
         zc = self.cfg.zenoh
         if not (zc.connect or zc.listen) and zc.mode == "peer" and self.serves_fleet:
