@@ -88,6 +88,24 @@ class Run:
         assert {s.mode for s in late} == {m.RobotState.HELD}, {m.label(s, "mode") for s in late}
         assert max(abs(v) for s in late for v in s.dq) < STILL_RAD_S
 
+    def assert_played_out_then_held(self, t0: float, t1: float, queued: int) -> None:
+        """Through [t0, t1] with no sender: the arm plays at most the ``queued`` actions it holds, does not
+        run on once it holds, and stands still at the end (waits for t1 to pass)."""
+        time.sleep(max(0.0, t1 + 0.3 - time.time()))
+        late = [s for s in self.since(m.STATE, 0) if t0 <= s.stamp <= t1]
+        assert late, "no robot state in the window"
+        ticks = {s.tick for s in late if s.played_chunk >= 0}
+        assert len(ticks) <= queued, f"{len(ticks)} ticks played a plan while the actor was stopped"
+        held = [i for i, s in enumerate(late) if s.mode == m.RobotState.HELD]
+        assert held, f"never held; modes {[m.label(s, 'mode') for s in late]}; {self.why_held(t0, t1)}"
+        after = late[held[0] :]
+        assert {s.mode for s in after} == {m.RobotState.HELD}, [
+            (round(s.stamp - t0, 2), m.label(s, "mode")) for s in after
+        ]
+        settled = [s for s in after if s.stamp >= after[0].stamp + 0.3]
+        assert settled, f"held only from {after[0].stamp - t0:.2f} s of {t1 - t0:.2f} s"
+        assert max(abs(v) for s in settled for v in s.dq) < STILL_RAD_S
+
     def assert_playing(self, t0: float, t1: float) -> bool:
         """The arm ran and played plans through [t0, t1] (waits for t1 to pass). A watchdog hold while the
         actor waits for a target is the camera's doing, not the fault's: allowed, but then the share of
@@ -211,11 +229,11 @@ def test_01_stopped_learner_the_actor_goes_on_planning_then_learning_resumes(run
 
 
 def test_01b_stopped_actor_the_arm_plays_out_its_plan_then_holds_then_acting_resumes(run: Run) -> None:
+    """Judged in robot-io's ticks, not in wall time: a loaded machine plays the queued plan's ticks slower
+    than the control rate, and the hold still follows them (the window after them varies, not the rule)."""
     pid = run.pids()["act"]
-    t0, t1 = _pause(pid, 5.0)
-    robot = run.cfg["robot"]
-    plan = _longest_plan(run) / robot["control_rate_hz"]  # what robot-io has queued when the actor stops
-    run.assert_held(t0 + plan + robot["watchdog_timeout_s"] + 0.3, t1)
+    t0, t1 = _pause(pid, 7.0)
+    run.assert_played_out_then_held(t0, t1, _longest_plan(run))
     run.wait_learning(t1)
     assert run.pids()["act"] == pid, f"act was restarted; its log:\n{run.log_tail('actor')}"
 
