@@ -13,14 +13,15 @@ reality-gap overlays on the PyBullet mock (configs/gaps/: ``slow_arm``, ``camera
 
 Per run: success by quarter, steps until 90 % rolling success (20 episodes), workspace clips, reflexes
 (``driver_error`` events), the achieved control rate while the arm is not homing (and the time spent
-homing), mean H per quarter, and H over the first 500 steps. Each run is kept in
+homing), mean H per quarter, and H over the first 500 steps; per setting, the handoff against fixed H and
+against frozen (differences of success rates with 95 % intervals). Each run is kept in
 ``results/handoff/<setting>/<variant>_s<seed>.json`` and not run again (resumable) unless it learned after
 the handoff at another ``handoff_step_scale`` than its config gives now; ``results/handoff.json``
 and ``results/handoff.png`` summarise whatever has finished. One run at a time. A run under 90 % in its last
 quarter keeps its recording in ``runs/handoff_short/`` (``recording_kept`` in its file).
 
     python bench/handoff.py [--settings franky_sim ...] [--variants ...] [--seeds 0 1 2] [--steps 6000]
-                            [--out results/handoff]
+                            [--out results/handoff] [--agent KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from loopback import free_endpoint, unique_name  # noqa: E402
 
 from bus import messages as m  # noqa: E402
 from deploy.config import compose_stack_yaml  # noqa: E402
+from experiments.stats import rate_diff  # noqa: E402
 from monitor import recording  # noqa: E402
 
 OUT = ROOT / "results" / "handoff"
@@ -94,14 +96,22 @@ def source_policy(seed: int) -> Path:
     return out / "checkpoint.pkl"
 
 
-def stack_config(setting: str, variant: str, seed: int, steps: int, tmp: Path, fixed_h: int | None) -> Path:
+def stack_config(
+    setting: str,
+    variant: str,
+    seed: int,
+    steps: int,
+    tmp: Path,
+    fixed_h: int | None,
+    overrides: dict[str, Any],
+) -> Path:
     cfg = compose_stack_yaml(ROOT / SETTINGS[setting])
     cfg["name"] = unique_name("hand")
     cfg["zenoh"]["hub"] = free_endpoint()
     cfg["robot"]["seed"] = seed
     if cfg["robot"]["backend"] == "franka":
         cfg["robot"]["franka"]["ip"] = FRANKY_HOST
-    agent = dict(cfg["learner"].get("agent") or {})
+    agent = dict(cfg["learner"].get("agent") or {}) | overrides
     if variant == "frozen":
         agent["frozen"] = True
     if variant == "fixed_h":
@@ -115,22 +125,25 @@ def stack_config(setting: str, variant: str, seed: int, steps: int, tmp: Path, f
     return path
 
 
-def step_scale(setting: str) -> float:
+def step_scale(setting: str, overrides: dict[str, Any]) -> float:
     """The fine-tuning step after a handoff that ``setting``'s config gives (``handoff_step_scale``)."""
-    agent = compose_stack_yaml(ROOT / SETTINGS[setting])["learner"].get("agent") or {}
+    agent = (compose_stack_yaml(ROOT / SETTINGS[setting])["learner"].get("agent") or {}) | overrides
     return float(agent.get("handoff_step_scale", 1.0))
 
 
 def stale(run: dict[str, Any]) -> bool:
     """A run that learned after a handoff at another step than its config's now (runs before the key: 1.0)."""
     learned_after_handoff = run["variant"] in ("handoff", "fixed_h")
-    return learned_after_handoff and run.get("handoff_step_scale", 1.0) != step_scale(run["setting"])
+    now = step_scale(run["setting"], run.get("agent", {}))
+    return learned_after_handoff and run.get("handoff_step_scale", 1.0) != now
 
 
-def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | None) -> dict[str, Any]:
+def run_one(
+    setting: str, variant: str, seed: int, steps: int, fixed_h: int | None, agent: dict[str, Any]
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        path = stack_config(setting, variant, seed, steps, tmp, fixed_h)
+        path = stack_config(setting, variant, seed, steps, tmp, fixed_h, agent)
         cmd = [sys.executable, "-m", "deploy.cli", "up", str(path), "--summary", str(tmp / "summary.json")]
         if variant != "scratch":
             cmd += ["--policy-from", str(source_policy(seed))]
@@ -165,7 +178,8 @@ def run_one(setting: str, variant: str, seed: int, steps: int, fixed_h: int | No
         "safety_events": summary["safety_events"],
         **ticks,
         "fixed_h": fixed_h,
-        "handoff_step_scale": step_scale(setting),
+        "handoff_step_scale": step_scale(setting, agent),
+        **({"agent": agent} if agent else {}),
     }
 
 
@@ -247,9 +261,21 @@ def run_file(out: Path, setting: str, variant: str, seed: int) -> Path:
     return out / setting / f"{variant}_s{seed}.json"
 
 
-def other_lengths(out: Path, steps: int) -> list[Path]:
-    """The runs in ``out`` of another length than ``steps``: one summary would mix them."""
-    return [p for p in sorted(out.glob("*/*.json")) if json.loads(p.read_text())["steps"] != steps]
+def other_runs(out: Path, steps: int, agent: dict[str, Any]) -> list[Path]:
+    """The runs in ``out`` of another length than ``steps`` or with other ``--agent`` keys than ``agent``:
+    one summary would mix them."""
+    paths = sorted(out.glob("*/*.json"))
+    return [
+        p for p in paths if (r := json.loads(p.read_text()))["steps"] != steps or r.get("agent", {}) != agent
+    ]
+
+
+def agent_override(kv: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` (VALUE read as YAML) of ``--agent``."""
+    key, sep, value = kv.partition("=")
+    if not sep:
+        raise SystemExit(f"--agent {kv!r}: expected KEY=VALUE")
+    return key, yaml.safe_load(value)
 
 
 def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -279,7 +305,44 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
                     "homing_s": _median([r["homing_s"] for r in group]),
                 }
             )
-    return {"command": "python bench/handoff.py", "rows": rows, "runs": runs}
+    comparisons = [
+        c
+        for setting in SETTINGS
+        for against in ("fixed_h", "frozen")
+        if (c := compare(runs, setting, "handoff", against)) is not None
+    ]
+    return {"command": "python bench/handoff.py", "rows": rows, "comparisons": comparisons, "runs": runs}
+
+
+def compare(runs: list[dict[str, Any]], setting: str, variant: str, against: str) -> dict[str, Any] | None:
+    """``variant`` against ``against`` on the seeds both ran: the difference of their success rates over the
+    last quarter's episodes and over every episode after the handoff, pooled over those seeds, each with a
+    95 % interval (experiments.stats.rate_diff). A quarter holds a few dozen episodes, so one episode more
+    or less moves it by 3 points: the whole run says more about which start does better."""
+    by = {(r["variant"], r["seed"]): r for r in runs if r["setting"] == setting and r["success_by_quarter"]}
+    seeds = sorted(s for v, s in by if v == variant and (against, s) in by)
+    if not seeds:
+        return None
+
+    def pooled(v: str, quarters: slice) -> tuple[int, int]:
+        counts = [_successes(by[(v, s)], quarters) for s in seeds]
+        return sum(c for c, _ in counts), sum(n for _, n in counts)
+
+    return {
+        "setting": setting,
+        "variant": variant,
+        "against": against,
+        "seeds": seeds,
+        "last_quarter": rate_diff(pooled(variant, slice(3, 4)), pooled(against, slice(3, 4))),
+        "whole_run": rate_diff(pooled(variant, slice(0, 4)), pooled(against, slice(0, 4))),
+    }
+
+
+def _successes(run: dict[str, Any], quarters: slice) -> tuple[int, int]:
+    """(successes, episodes) in ``quarters`` of a run; a quarter: ``episodes // 4`` episodes (learning())."""
+    q = run["episodes"] // 4
+    fractions = run["success_by_quarter"][quarters]
+    return sum(round(f * q) for f in fractions), q * len(fractions)
 
 
 def _median(values: list) -> float | None:
@@ -330,14 +393,25 @@ def main() -> int:
         type=Path,
         default=OUT,
         help="where the runs go (a run there is not made again); the summary and figure go beside it as"
-        " <out>.json and <out>.png; runs of another length there are named and refused",
+        " <out>.json and <out>.png; runs of another length or --agent there are named and refused",
+    )
+    ap.add_argument(
+        "--agent",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="learner.agent keys (YAML values) over each setting's config, every variant; kept in each run",
     )
     args = ap.parse_args()
-    if mixed := other_lengths(args.out, args.steps):
+    agent = dict(agent_override(kv) for kv in args.agent)
+    if mixed := other_runs(args.out, args.steps, agent):
         names = ", ".join(str(p.relative_to(args.out)) for p in mixed[:3]) + (
             ", ..." if len(mixed) > 3 else ""
         )
-        print(f"{args.out} holds runs of another length than {args.steps} steps ({names}): use another --out")
+        print(
+            f"{args.out} holds runs of another length than {args.steps} steps or other --agent keys"
+            f" ({names}): use another --out"
+        )
         return 2
     todo = [(s, v, seed) for s in args.settings for seed in args.seeds for v in args.variants]
     for n, (setting, variant, seed) in enumerate(todo, 1):
@@ -357,9 +431,9 @@ def main() -> int:
             from franka_simulators import FrankySimServer
 
             with FrankySimServer(FRANKY_HOST):
-                run = run_one(setting, variant, seed, args.steps, fixed_h)
+                run = run_one(setting, variant, seed, args.steps, fixed_h, agent)
         else:
-            run = run_one(setting, variant, seed, args.steps, fixed_h)
+            run = run_one(setting, variant, seed, args.steps, fixed_h, agent)
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(run, indent=1))
         print(f"  -> success by quarter {run['success_by_quarter']}, mean H {run['mean_H']}", flush=True)
@@ -370,6 +444,7 @@ def main() -> int:
     if summary["rows"]:
         plot(summary, args.out.with_suffix(".png"))
     print(results_tables.handoff(summary))
+    print(results_tables.handoff_comparisons(summary))
     print("python scripts/results_tables.py puts it in the README")
     return 0
 

@@ -27,7 +27,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 import tasks  # noqa: F401  (registers NSReach-v0)
 from deploy.config import load_stack_config
@@ -35,7 +34,7 @@ from learner.registry import make_agent
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
-from handoff import source_policy  # noqa: E402
+from handoff import agent_override, source_policy  # noqa: E402
 
 OUT = ROOT / "results" / "handoff_inprocess.json"
 STEPS = 6000
@@ -57,14 +56,6 @@ def run(seed: int, variant: str, gain: float, agent: dict[str, Any]) -> dict[str
         for k in range(4)
     ]
     return {"success_by_quarter": [round(float(np.mean(q)), 3) for q in quarters]}
-
-
-def agent_override(kv: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` (VALUE read as YAML) of ``--agent``."""
-    key, sep, value = kv.partition("=")
-    if not sep:
-        raise SystemExit(f"--agent {kv!r}: expected KEY=VALUE")
-    return key, yaml.safe_load(value)
 
 
 def main() -> int:

@@ -61,3 +61,31 @@ def outcome(d: dict[str, Any], higher_is_better: bool = True) -> str:
         return "too few seeds"  # a one-seed "interval" has width zero and would decide anything
     lo, hi = (d["lo"], d["hi"]) if higher_is_better else (-d["hi"], -d["lo"])
     return "better" if lo > 0 else "worse" if hi < 0 else "tie"
+
+
+Z95 = 1.959963984540054
+
+
+def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson's score interval for a success rate: honest near 0 and 1, where a normal one is not."""
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return float(centre - half), float(centre + half)
+
+
+def rate_diff(a: tuple[int, int], b: tuple[int, int]) -> dict[str, Any]:
+    """``a`` minus ``b`` as success rates, each ``(successes, trials)``, with Newcombe's hybrid score 95%
+    interval (from the two Wilson intervals). It takes trials as independent: episodes of one learner are
+    not quite, so read the interval as the narrowest the data allow."""
+    (sa, na), (sb, nb) = a, b
+    pa, pb = sa / na, sb / nb
+    (la, ua), (lb, ub) = wilson(sa, na), wilson(sb, nb)
+    d = pa - pb
+    return {
+        "diff": d,
+        "lo": d - float(np.hypot(pa - la, ub - pb)),
+        "hi": d + float(np.hypot(ua - pa, pb - lb)),
+        "n_a": na,
+        "n_b": nb,
+    }

@@ -194,6 +194,24 @@ def handoff_headline(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def handoff_comparisons(data: dict[str, Any]) -> str:
+    """``results/handoff.json``: the handoff learning with the adaptive retreat against fixed H and against
+    the frozen policy, per setting: the difference of success rates in the last quarter and over the whole
+    run, pooled over the seeds both ran, with 95 % intervals."""
+    lines = [
+        "| setting | against | seeds | last quarter, points (95 % interval)"
+        " | whole run, points (95 % interval) |",
+        "|---|---|---|---|---|",
+    ]
+    for c in data.get("comparisons", []):
+        cells = [c["setting"], c["against"], ", ".join(map(str, c["seeds"]))]
+        for key in ("last_quarter", "whole_run"):
+            d = c[key]
+            cells.append(f"{100 * d['diff']:+.1f} ({100 * d['lo']:+.1f} to {100 * d['hi']:+.1f})")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def fleet(data: dict[str, Any]) -> str:
     """``results/fleet.json``: per number of arms, the seeds' steps and seconds to 70 % rolling success,
     last-quarter success per arm, the learner's rate and each arm's CPU."""
@@ -243,6 +261,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "stack_robustness_shipped": ("results/stack_robustness.json", stack_robustness_shipped),
     "handoff": ("results/handoff.json", handoff),
     "handoff_headline": ("results/handoff.json", handoff_headline),
+    "handoff_comparisons": ("results/handoff.json", handoff_comparisons),
     "handoff_start": ("results/handoff_start.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
@@ -313,6 +332,11 @@ PAGES: dict[str, Page] = {
         "python bench/handoff.py",
         (
             ("## By setting and start", "handoff"),
+            (
+                "## Learning with the retreat against fixed H and against the frozen policy (handoff minus"
+                " the other, pooled over seeds; the interval takes episodes as independent)",
+                "handoff_comparisons",
+            ),
             ("## Figure", "handoff.png"),
             (
                 "## Scratch on franky-sim: the start, 1000 steps (`--seeds 3 4 5 6 --steps 1000 --out"

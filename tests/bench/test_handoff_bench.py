@@ -44,12 +44,36 @@ def test_a_run_that_met_the_goal_keeps_nothing(tmp_path, monkeypatch):
     assert kept is None and not (tmp_path / "short").exists()
 
 
-def test_runs_of_another_length_are_named_not_mixed(tmp_path):
-    """One --out folder holds runs of one length: the bench names those of another before running any."""
+def test_runs_of_another_length_or_agent_are_named_not_mixed(tmp_path):
+    """One --out folder holds runs of one length and one set of --agent keys: the bench names the others
+    before running any."""
     bench = load_bench()
-    for name, steps in (("scratch_s0", 6000), ("scratch_s1", 1000)):
+    runs = {"scratch_s0": '{"steps": 6000}', "scratch_s1": '{"steps": 1000}'}
+    runs["handoff_s0"] = '{"steps": 6000, "agent": {"h_max": 20}}'
+    for name, text in runs.items():
         path = bench.run_file(tmp_path, "franky_sim", *name.split("_s"))
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(f'{{"steps": {steps}}}')
-    assert bench.other_lengths(tmp_path, 6000) == [tmp_path / "franky_sim" / "scratch_s1.json"]
-    assert bench.other_lengths(tmp_path, 1000) == [tmp_path / "franky_sim" / "scratch_s0.json"]
+        path.write_text(text)
+    folder = tmp_path / "franky_sim"
+    assert bench.other_runs(tmp_path, 6000, {}) == [folder / "handoff_s0.json", folder / "scratch_s1.json"]
+    assert bench.other_runs(tmp_path, 1000, {}) == [folder / "handoff_s0.json", folder / "scratch_s0.json"]
+    assert bench.other_runs(tmp_path, 6000, {"h_max": 20}) == [
+        folder / "scratch_s0.json",
+        folder / "scratch_s1.json",
+    ]
+
+
+def test_the_handoff_is_compared_on_the_seeds_both_starts_ran():
+    """Success rates pooled over the shared seeds' episodes (a quarter: episodes // 4 of them)."""
+    bench = load_bench()
+    run = {"setting": "slow_arm", "episodes": 120}
+    runs = [
+        run | {"variant": "handoff", "seed": 0, "success_by_quarter": [1.0, 0.9, 0.9, 0.8]},
+        run | {"variant": "handoff", "seed": 1, "success_by_quarter": [1.0, 1.0, 1.0, 1.0]},
+        run | {"variant": "fixed_h", "seed": 0, "success_by_quarter": [1.0, 1.0, 1.0, 1.0]},
+    ]
+    (c,) = [c for s in bench.SETTINGS if (c := bench.compare(runs, s, "handoff", "fixed_h"))]
+    assert c["setting"] == "slow_arm" and c["seeds"] == [0]
+    assert c["last_quarter"]["n_a"] == 30 and abs(c["last_quarter"]["diff"] + 0.2) < 1e-12
+    assert abs(c["whole_run"]["diff"] + 0.1) < 1e-12 and c["whole_run"]["hi"] < 0
+    assert bench.compare(runs, "slow_arm", "handoff", "frozen") is None
