@@ -266,6 +266,9 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
     "handoff_hmax20": ("results/handoff_hmax20.json", handoff),
+    "handoff_hmax20_comparisons": ("results/handoff_hmax20.json", handoff_comparisons),
+    "handoff_corrected": ("results/handoff_corrected.json", handoff),
+    "handoff_corrected_comparisons": ("results/handoff_corrected.json", handoff_comparisons),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -355,9 +358,16 @@ PAGES: dict[str, Page] = {
             ),
             (
                 "## Handoff on franky-sim with segments of at most 20 steps (tried, not adopted:"
-                " `learner.agent.h_max: 20`, `--out results/handoff_hmax20`)",
+                " `--agent h_max=20 --out results/handoff_hmax20`)",
                 "handoff_hmax20",
             ),
+            ("### Against fixed H at its mean H", "handoff_hmax20_comparisons"),
+            (
+                "## Segments of at most 20 steps and the plan model corrected online (tried, not adopted:"
+                " `--agent h_max=20 plan_model=corrected --out results/handoff_corrected`)",
+                "handoff_corrected",
+            ),
+            ("### Against fixed H at its mean H", "handoff_corrected_comparisons"),
         ),
         "../handoff.md#results",
     ),
