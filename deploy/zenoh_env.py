@@ -241,10 +241,10 @@ class ZenohReachEnv(ReachSpec):
         self.segment, self._opening = segment, opening(segment_end)
 
     def _chunk(self, obs: np.ndarray, action: np.ndarray) -> np.ndarray:
-        n = self.settings.chunk_len - 1
-        if n <= 0:
-            return action[None, :]
-        tail = np.zeros((n, 3)) if self.planner is None else np.asarray(self.planner(obs, action, n))
+        """This step's action and its tail, each step capped in length as robot-io requires (the action is
+        clipped per axis: a diagonal one is up to √3 times too long)."""
+        n = max(self.settings.chunk_len - 1, 0)
+        tail = np.zeros((n, 3)) if self.planner is None or not n else np.asarray(self.planner(obs, action, n))
         return cap_step_length(np.vstack([action[None, :], tail.reshape(n, 3)]), self.settings.max_step_m)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:

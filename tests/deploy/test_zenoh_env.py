@@ -3,6 +3,8 @@ scaling for the learner (a mismatch here once kept the stack from learning what 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import yaml
@@ -28,6 +30,24 @@ def test_sim_yaml_env_scales_states_like_the_in_process_env(endpoint):
         assert env.action_space == inproc.action_space
     finally:
         inproc.close()
+        bus.close()
+
+
+@pytest.mark.parametrize("chunk_len", [1, 10])
+def test_a_diagonal_action_is_sent_no_longer_than_robot_io_accepts(endpoint, chunk_len):
+    """The action is clipped per axis; robot-io refuses a step longer than robot.max_step_m, so every step
+    of the chunk, the first too, is capped in length (a chunk of one once went out uncapped)."""
+    settings = env_settings(load_stack_config("configs/sim.yaml"))
+    settings = dataclasses.replace(settings, chunk_len=chunk_len)
+    bus = Bus(open_session(ZenohConfig(listen=(endpoint,))), unique_name("z"))
+    try:
+        env = ZenohReachEnv(bus, settings)
+        step = settings.max_step_m
+        chunk = env._chunk(np.zeros(env.observation_space.shape), np.full(3, step))
+        assert chunk.shape == (chunk_len, 3)
+        assert np.linalg.norm(chunk, axis=1).max() <= step * (1 + 1e-12)
+        np.testing.assert_allclose(chunk[0], np.full(3, step / np.sqrt(3)))
+    finally:
         bus.close()
 
 
