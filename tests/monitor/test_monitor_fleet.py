@@ -9,7 +9,7 @@ import json
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -110,8 +110,16 @@ def page() -> Iterator[Any]:
         browser.close()
 
 
-def _shows(page: Any, selector: str, text: str, what: str) -> None:
-    wait_until(lambda: page.inner_text(selector) == text, 10, what, every=0.1)
+def _shows(page: Any, selector: str, text: str, what: str, alive: Callable[[], None] | None = None) -> None:
+    """``selector`` reads ``text`` within 10 s; ``alive`` (the test's arm publishing a state) is called at
+    each look, as a live arm publishes: a state older than 2 s reads "(silent N s)" after its mode."""
+
+    def shown() -> bool:
+        if alive is not None:
+            alive()
+        return page.inner_text(selector) == text
+
+    wait_until(shown, 10, what, every=0.1)
 
 
 def _episodes(peer: Fleet, arm: str, successes: list[bool]) -> list[m.Transition]:
@@ -172,7 +180,7 @@ def test_an_arms_stop_goes_to_that_arm_alone_and_the_estop_to_every_arm(fleet, p
     with running_part("robot-io", peer.cfg, tmp_path, ready, TOKEN, ("--arm", "arm0", "--watch", "")):
         page.goto(server.url)
         _shows(page, "#arm-arm0 .amode", "RUNNING", "arm0's robot-io in its row")
-        _shows(page, "#arm-arm1 .amode", "RUNNING", "arm1 in its row")
+        _shows(page, "#arm-arm1 .amode", "RUNNING", "arm1 in its row", lambda: peer.state("arm1", "running"))
         page.click("#stop-arm0")  # no token typed: a stop needs none
         _shows(page, "#arm-arm0 .amode", "ESTOP", "arm0's robot-io e-stopped")
         assert page.inner_text("#reply") == "sent estop to arm0"
