@@ -203,7 +203,7 @@ def handoff_comparisons(data: dict[str, Any]) -> str:
         " | whole run, points (95 % interval) |",
         "|---|---|---|---|---|",
     ]
-    for c in data.get("comparisons", []):
+    for c in data["comparisons"]:
         cells = [c["setting"], c["against"], ", ".join(map(str, c["seeds"]))]
         for key in ("last_quarter", "whole_run"):
             d = c[key]
