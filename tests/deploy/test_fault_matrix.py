@@ -207,11 +207,15 @@ def run(tmp_path_factory) -> Iterator[Run]:
 
 
 def _pause(pid: int, seconds: float) -> tuple[float, float]:
+    """The fault's window, both ends taken before the signal that changes it: taken after SIGCONT, the
+    window could hold the states the woken part had already driven (a loaded machine can run it before
+    this process reads the clock)."""
     t0 = time.time()
     os.kill(pid, signal.SIGSTOP)
     time.sleep(seconds)
+    t1 = time.time()
     os.kill(pid, signal.SIGCONT)
-    return t0, time.time()
+    return t0, t1
 
 
 def test_01_stopped_learner_the_actor_goes_on_planning_then_learning_resumes(run: Run) -> None:
