@@ -3,7 +3,8 @@
 Settings (each a stack config): ``franky_sim`` (configs/franka_sim.yaml against franky-sim, which this
 bench starts on a private loopback address: another simulator, another arm model, its own PD lag) and the
 reality-gap overlays on the PyBullet mock (configs/gaps/: ``slow_arm``, ``camera_offset``,
-``actuation_latency``, ``target_motion``). Variants per setting and seed:
+``actuation_latency``, ``target_motion``), and ``franka_limits``: franky-sim driven with the real arm's
+motion settings (configs/franka_realsense.yaml's). Variants per setting and seed:
 
 - ``scratch``: the product's default from an empty policy;
 - ``handoff``: from the in-process PyBullet policy of the same seed (``adaptiveh train --config
@@ -59,6 +60,7 @@ SETTINGS = {
     "camera_offset": "configs/gaps/camera_offset.yaml",
     "actuation_latency": "configs/gaps/actuation_latency.yaml",
     "target_motion": "configs/gaps/target_motion.yaml",
+    "franka_limits": "configs/gaps/franka_limits.yaml",
 }
 VARIANTS = ("scratch", "handoff", "frozen", "fixed_h")
 COLOURS = {"scratch": "tab:blue", "handoff": "tab:orange", "frozen": "tab:green", "fixed_h": "tab:red"}
@@ -427,7 +429,7 @@ def main() -> int:
                 continue
             fixed_h = max(1, round(handoff["mean_H"]))
         print(f"[{n}/{len(todo)}] {setting} / {variant} / seed {seed}", flush=True)
-        if setting == "franky_sim":
+        if compose_stack_yaml(ROOT / SETTINGS[setting])["robot"]["backend"] == "franka":
             from franka_simulators import FrankySimServer
 
             with FrankySimServer(FRANKY_HOST):

@@ -78,13 +78,16 @@ def fit_tracking(episodes: list[tuple[np.ndarray, np.ndarray]], dt: float) -> di
             den += float(mean_v @ mean_v)
     ratio = num / den
     best = (np.inf, 0.0, 0.0)
-    for s in np.arange(0.01, 0.0501, 0.0025):
-        for g in np.arange(0.5, 1.201, 0.025):
+    steps, gains = np.arange(0.005, 0.0501, 0.0025), np.arange(0.2, 1.501, 0.025)
+    for s in steps:
+        for g in gains:
             errors = open_loop_errors(
                 episodes, partial(predict_reach, tracking=ArmTracking(g, s, ratio)), dt, horizon=10
             )
             best = min(best, (float(np.mean(list(errors.values()))), s, g))
     _, s, g = best
+    if s in (steps[0], steps[-1]) or g in (gains[0], gains[-1]):
+        print(f"warning: the fit is at the edge of its grid (step_m {s:.4f}, gain {g:.3f}): widen it")
     return {
         "track_step_m": round(float(s), 4),
         "track_gain": round(float(g), 3),
@@ -112,15 +115,20 @@ def open_loop_errors(episodes, model, dt: float, horizon: int | None = None) -> 
 
 def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
     """(observations, executed raw actions) of each whole ``EPISODE``-step episode of consecutive ticks in
-    a stack recording's transitions (an episode with an outage or a restart in it is left out)."""
+    a stack recording's transitions (an episode with an outage or a restart in it is left out). A
+    transition the actor sent again (``deploy.transition_stream``: the learner had not acked it yet) is
+    recorded twice and counted once, as the learner counts it."""
     from bus import messages as m
     from monitor import recording
 
     by_episode: dict[int, list] = {}
+    seen: set[tuple[str, int]] = set()
     for topic, _, _, data in recording.read(path):
         if topic.endswith("/" + m.TRANSITIONS.name):
             t = m.Transition.FromString(data)
-            by_episode.setdefault(t.episode, []).append(t)
+            if (t.stream, t.step) not in seen:
+                seen.add((t.stream, t.step))
+                by_episode.setdefault(t.episode, []).append(t)
     out = []
     for steps in by_episode.values():
         chained = all(np.allclose(a.next_obs, b.obs) for a, b in zip(steps, steps[1:], strict=False))

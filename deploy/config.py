@@ -353,6 +353,17 @@ class StackConfig(Section):
         return self
 
     @model_validator(mode="after")
+    def _plan_model_is_the_arms(self) -> StackConfig:
+        """A Franka's plans are predicted with its own tracking: the mock's default lags nothing like it."""
+        if self.robot.backend == "franka" and self.robot.tracking is None:
+            raise ValueError(
+                "robot.tracking: not set; a franka arm's plan model needs this arm's own tracking, not the"
+                " PyBullet mock's: fit it with python bench/reach_model.py --recording RUN.mcap on a run of"
+                " this arm (configs/franka_realsense.yaml ships franky-sim's at the same motion settings)"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _sim_camera_needs_sim_arm(self) -> StackConfig:
         if self.vision is not None and self.vision.camera == "sim" and not self.robot.simulated:
             raise ValueError(

@@ -220,6 +220,15 @@ def test_the_plan_model_tracks_as_the_configured_arm_does():
     assert franky.predict_next(obs, step)[1] < mock.predict_next(obs, step)[1]  # franky-sim's command lags
 
 
+@pytest.mark.parametrize("config", ["configs/franka_sim.yaml", "configs/franka_realsense.yaml"])
+def test_a_franka_without_its_own_tracking_is_refused_naming_the_key(tmp_path, config):
+    """The plan model would otherwise predict a Franka with the mock's tracking (it lags nothing alike)."""
+    data = compose_stack_yaml(config)
+    data["robot"].pop("tracking")
+    with pytest.raises(ConfigError, match=r"robot\.tracking: not set.*bench/reach_model\.py"):
+        load_stack_config(_write(tmp_path, yaml.safe_dump(data)))
+
+
 @pytest.mark.parametrize(
     "change, complaint",
     [
