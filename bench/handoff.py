@@ -66,6 +66,7 @@ VARIANTS = ("scratch", "handoff", "frozen", "fixed_h")
 COLOURS = {"scratch": "tab:blue", "handoff": "tab:orange", "frozen": "tab:green", "fixed_h": "tab:red"}
 SOURCE_STEPS = 10_000
 ROLLING = 20  # episodes in the rolling success rate
+OUTSIDE_M = 0.01  # the hand further than this outside the workspace box counts as out of it
 HOMING_GAP_S = 0.2  # consecutive ticks further apart than this: the arm was homing (or held)
 FRANKY_HOST = "127.0.77.7"
 
@@ -163,7 +164,10 @@ def run_one(
             )
         summary = json.loads((tmp / "summary.json").read_text())
         result = json.loads((tmp / "learner" / "result.json").read_text())
-        ticks = control_rate(recording.read(summary["recording"]))
+        records = recording.read(summary["recording"])
+        ticks = control_rate(records)
+        box = yaml.safe_load(path.read_text())["robot"]["workspace"]
+        outside = hand_outside_box(records, box["lo"], box["hi"])
         learned = learning(result["episodes"], result["segments"], steps)
         kept = keep_if_short(learned, summary["recording_parts"], setting, variant, seed)
     return {
@@ -179,6 +183,7 @@ def run_one(
         "reflexes": summary["safety_events"].get("driver_error", 0),
         "safety_events": summary["safety_events"],
         **ticks,
+        **outside,
         "fixed_h": fixed_h,
         "handoff_step_scale": step_scale(setting, agent),
         **({"agent": agent} if agent else {}),
@@ -248,6 +253,23 @@ def control_rate(records: list) -> dict[str, Any]:
         "control_hz_p5_window": _worst_window_hz(running),
         "homing_s": round(float(gaps[gaps >= HOMING_GAP_S].sum()), 1),
         "ticks": len(order),
+    }
+
+
+def hand_outside_box(records: list, lo: list[float], hi: list[float]) -> dict[str, Any]:
+    """How often and how far the measured hand left ``robot.workspace``: robot-io clips each goal into the
+    box, so a hand outside it is the arm overshooting its command (on a real arm: toward the table)."""
+    hands = np.array(
+        [
+            m.RobotState.FromString(data).ee_pos
+            for topic, _, _, data in records
+            if topic.endswith("/" + m.STATE.name)
+        ]
+    ).reshape(-1, 3)
+    beyond = np.maximum(np.asarray(lo) - hands, hands - np.asarray(hi)).max(axis=1, initial=0.0)
+    return {
+        "hand_outside_box_share": round(float(np.mean(beyond > OUTSIDE_M)), 4) if len(hands) else None,
+        "hand_outside_box_max_m": round(float(beyond.max(initial=0.0)), 3),
     }
 
 

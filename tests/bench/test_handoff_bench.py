@@ -77,3 +77,15 @@ def test_the_handoff_is_compared_on_the_seeds_both_starts_ran():
     assert c["last_quarter"]["n_a"] == 30 and abs(c["last_quarter"]["diff"] + 0.2) < 1e-12
     assert abs(c["whole_run"]["diff"] + 0.1) < 1e-12 and c["whole_run"]["hi"] < 0
     assert bench.compare(runs, "slow_arm", "handoff", "frozen") is None
+
+
+def test_the_hand_outside_the_workspace_box_is_counted_by_how_far():
+    """A hand within 1 cm of the box counts as inside (the clip's own rounding); one 4 cm under its floor
+    is out, and the deepest excursion is reported."""
+    from bus import messages as m
+
+    hands = [(0.5, 0.0, 0.3), (0.5, 0.0, 0.045), (0.5, 0.0, 0.01), (0.85, 0.0, 0.3)]
+    records = [("arm/state", "RobotState", 0, m.RobotState(ee_pos=h).SerializeToString()) for h in hands]
+    records.append(("arm/target", "Target", 0, b"not a state"))
+    out = load_bench().hand_outside_box(records, [0.2, -0.45, 0.05], [0.8, 0.45, 0.7])
+    assert out == {"hand_outside_box_share": 0.5, "hand_outside_box_max_m": 0.05}
