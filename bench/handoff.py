@@ -52,6 +52,7 @@ from monitor import recording  # noqa: E402
 
 OUT = ROOT / "results" / "handoff"
 SOURCES = ROOT / "runs" / "handoff_sources"
+FAILED = ROOT / "runs" / "handoff_failed"  # the config and logs of a run whose stack exited in error
 SHORT = ROOT / "runs" / "handoff_short"  # recordings of runs under GOAL in the last quarter, to read why
 GOAL = 0.9  # last-quarter success the goals ask of every run
 SETTINGS = {
@@ -158,9 +159,12 @@ def run_one(
                     print(f"  {setting}/{variant} s{seed} {line.rstrip()}", flush=True)
             up.wait()
         if up.returncode != 0 or not (tmp / "summary.json").exists():
+            kept = FAILED / setting / f"{variant}_s{seed}"
+            shutil.rmtree(kept, ignore_errors=True)
+            shutil.copytree(tmp, kept, ignore=shutil.ignore_patterns("*.mcap", "learner"))
             raise RuntimeError(
-                f"{setting}/{variant} s{seed}: adaptiveh up exited {up.returncode}:\n"
-                + (tmp / "up.log").read_text()[-3000:]
+                f"{setting}/{variant} s{seed}: adaptiveh up exited {up.returncode} (its config and the"
+                f" parts' logs kept in {kept.relative_to(ROOT)}):\n" + (tmp / "up.log").read_text()[-3000:]
             )
         summary = json.loads((tmp / "summary.json").read_text())
         result = json.loads((tmp / "learner" / "result.json").read_text())

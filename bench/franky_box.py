@@ -1,0 +1,133 @@
+"""Does the hand stay inside ``robot.workspace`` on franky-sim? robot-io clips each *goal* into the box;
+the hand follows the command with a lag and can overshoot it.
+
+A scripted reacher (no learner) drives robot-io's controller in this process, through franky, against
+franky-sim: each period it steps ``robot.max_step_m`` from the measured hand toward a goal, six goals in
+turn (80 periods each), four of them 7-10 cm above the box's floor, as a policy heads for a low target.
+Settings: the robot sections of ``configs/franka_sim.yaml`` (the rehearsal: franky's full dynamics) and of
+``configs/gaps/franka_limits.yaml`` (the real arm's motion settings, ``franka_realsense.yaml``'s), each as
+shipped and with a shorter ``command_lead_m`` or the ``rest`` stream. Per setting: the share of ticks the
+hand was more than 1 cm outside the box and how far at most, its lowest point, the periods to come within
+2 cm of each goal (``null``: not in 80), and the hand's largest distance from a goal once it had arrived.
+
+    python bench/franky_box.py          # ~1 min a setting; writes results/franky_box.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+from franka_simulators import FrankySimServer  # noqa: E402
+
+from deploy.config import load_stack_config  # noqa: E402
+from robot_io.config import RobotConfig  # noqa: E402
+from robot_io.controller import RobotController  # noqa: E402
+
+HOST = "127.0.77.9"
+OUT = ROOT / "results" / "franky_box.json"
+OUTSIDE_M = 0.01  # as bench/handoff.py counts a hand out of the box
+ARRIVED_M = 0.02
+PERIODS = 80
+GOALS = [(0.55, 0.25, 0.15), (0.4, -0.25, 0.4), (0.6, 0.2, 0.13), (0.35, 0.0, 0.45), (0.6, -0.25, 0.12)]
+GOALS += [(0.45, 0.25, 0.35)]
+SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
+    "rehearsal (franka_sim.yaml)": ("configs/franka_sim.yaml", {}),
+    "rehearsal, command_lead_m 0.05": ("configs/franka_sim.yaml", {"command_lead_m": 0.05}),
+    "rehearsal, stream rest": ("configs/franka_sim.yaml", {"stream": "rest"}),
+    "real arm's settings (franka_limits.yaml)": ("configs/gaps/franka_limits.yaml", {}),
+    "real arm's, command_lead_m 0.05": ("configs/gaps/franka_limits.yaml", {"command_lead_m": 0.05}),
+    "real arm's, stream rest": ("configs/gaps/franka_limits.yaml", {"stream": "rest"}),
+}
+
+
+def robot_config(path: str, change: dict[str, Any]) -> RobotConfig:
+    """The setting's robot section on franky-sim's address, with ``change`` (a stream or a command lead);
+    no scripted target (the goals are the reacher's)."""
+    robot = load_stack_config(ROOT / path).robot
+    stream = {"stream": change["stream"]} if "stream" in change else {}
+    franka = robot.franka.model_copy(update={"ip": HOST, "simulated_target": False, **stream})
+    lead = {"command_lead_m": change["command_lead_m"]} if "command_lead_m" in change else {}
+    return robot.model_copy(update={"franka": franka, **lead})
+
+
+def reach(controller: RobotController, config: RobotConfig) -> tuple[np.ndarray, list, list[float]]:
+    """The hand each period, the periods to arrive at each goal, and its distances to a goal once there."""
+    hands, arrivals, after = [], [], []
+    for goal in np.asarray(GOALS):
+        arrived = None
+        for k in range(PERIODS):
+            t0 = time.monotonic()
+            away = goal - controller.state().ee_pos
+            controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
+            time.sleep(max(0.0, config.period - (time.monotonic() - t0)))
+            hand = controller.state().ee_pos.copy()
+            hands.append(hand)
+            if arrived is None and np.linalg.norm(goal - hand) < ARRIVED_M:
+                arrived = k + 1
+            if arrived is not None:
+                after.append(float(np.linalg.norm(goal - hand)))
+        arrivals.append(arrived)
+    return np.array(hands), arrivals, after
+
+
+def run(label: str, path: str, change: dict[str, Any]) -> dict[str, Any]:
+    config = robot_config(path, change)
+    controller = RobotController(config)
+    try:
+        controller.reset()
+        hands, arrivals, after = reach(controller, config)
+    finally:
+        controller.close()
+    lo, hi = np.asarray(config.workspace.lo), np.asarray(config.workspace.hi)
+    beyond = np.maximum(lo - hands, hands - hi).max(axis=1)
+    return {
+        "setting": label,
+        "config": path,
+        "change": change,
+        "command_lead_m": config.command_lead_m,
+        "stream": config.franka.stream,
+        "dynamics": list(config.franka.dynamics),
+        "hand_outside_box_share": round(float(np.mean(beyond > OUTSIDE_M)), 3),
+        "hand_outside_box_max_m": round(float(max(beyond.max(), 0.0)), 3),
+        "hand_min_z_m": round(float(hands[:, 2].min()), 3),
+        "box_floor_z_m": float(lo[2]),
+        "periods_to_2cm": arrivals,
+        "after_arrival_max_m": round(max(after), 3) if after else None,
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", default=[], help="the settings whose names hold one of these")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args()
+    todo = {k: v for k, v in SETTINGS.items() if not args.only or any(w in k for w in args.only)}
+    rows = []
+    for n, (label, (path, change)) in enumerate(todo.items(), 1):
+        print(f"[{n}/{len(todo)}] {label}", flush=True)
+        with FrankySimServer(HOST):  # each setting from the same start
+            rows.append(run(label, path, change))
+        r = rows[-1]
+        print(
+            f"  outside the box {r['hand_outside_box_share']:.1%} of ticks, at most"
+            f" {r['hand_outside_box_max_m'] * 100:.1f} cm; lowest z {r['hand_min_z_m']:.3f} m; periods to"
+            f" 2 cm {r['periods_to_2cm']}; after arriving at most {r['after_arrival_max_m']} m",
+            flush=True,
+        )
+    summary = {"command": "python bench/franky_box.py", "periods_per_goal": PERIODS, "goals": GOALS}
+    args.out.write_text(json.dumps(summary | {"rows": rows}, indent=1))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
