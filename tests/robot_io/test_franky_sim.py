@@ -72,6 +72,8 @@ def stack(tmp_path_factory):
             "watchdog_timeout_s": 1.0,
             # lock_memory as on the real arm (a refusal only warns under realtime: ignore)
             "franka": {"ip": HOST, "home_dynamics": 0.5, "simulated_target": True, "lock_memory": True},
+            # a franka config names its arm's tracking (the plan model's; robot-io itself does not use it)
+            "tracking": {"gain": 1.175, "step_m": 0.02, "velocity_ratio": 0.15},
         },
     }
     folder = tmp_path_factory.mktemp("franky")
