@@ -161,7 +161,8 @@ class RobotConfig(Section):
         FrankaConfig(), description="the franky connection and the arm's own settings (backend franka only)"
     )
     mock: MockArmConfig = MockArmConfig()  # the PyBullet mock arm's dynamics (backend pybullet only)
-    # The arm's measured tracking for the plan model; None: the PyBullet mock's (tasks.reach.TRACKING).
+    # The arm's measured tracking for the plan model; None: the PyBullet mock's (tasks.reach.TRACKING),
+    # which a franka stack config may not leave it at (bench/reach_model.py fits an arm's own).
     tracking: TrackingConfig | None = None
 
     @model_validator(mode="after")
