@@ -25,8 +25,9 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 from franka_simulators import FrankySimServer  # noqa: E402
+from handoff import outside_box  # noqa: E402  (a hand out of the box, counted as the handoff bench does)
 
 from deploy.config import load_stack_config  # noqa: E402
 from robot_io.config import RobotConfig  # noqa: E402
@@ -34,7 +35,6 @@ from robot_io.controller import RobotController  # noqa: E402
 
 HOST = "127.0.77.9"
 OUT = ROOT / "results" / "franky_box.json"
-OUTSIDE_M = 0.01  # as bench/handoff.py counts a hand out of the box
 ARRIVED_M = 0.02
 PERIODS = 80
 GOALS = [(0.55, 0.25, 0.15), (0.4, -0.25, 0.4), (0.6, 0.2, 0.13), (0.35, 0.0, 0.45), (0.6, -0.25, 0.12)]
@@ -87,8 +87,7 @@ def run(label: str, path: str, change: dict[str, Any]) -> dict[str, Any]:
         hands, arrivals, after = reach(controller, config)
     finally:
         controller.close()
-    lo, hi = np.asarray(config.workspace.lo), np.asarray(config.workspace.hi)
-    beyond = np.maximum(lo - hands, hands - hi).max(axis=1)
+    box = outside_box(hands, list(config.workspace.lo), list(config.workspace.hi))
     return {
         "setting": label,
         "config": path,
@@ -96,10 +95,9 @@ def run(label: str, path: str, change: dict[str, Any]) -> dict[str, Any]:
         "command_lead_m": config.command_lead_m,
         "stream": config.franka.stream,
         "dynamics": list(config.franka.dynamics),
-        "hand_outside_box_share": round(float(np.mean(beyond > OUTSIDE_M)), 3),
-        "hand_outside_box_max_m": round(float(max(beyond.max(), 0.0)), 3),
+        **box,
         "hand_min_z_m": round(float(hands[:, 2].min()), 3),
-        "box_floor_z_m": float(lo[2]),
+        "box_floor_z_m": float(config.workspace.lo[2]),
         "periods_to_2cm": arrivals,
         "after_arrival_max_m": round(max(after), 3) if after else None,
     }

@@ -263,13 +263,16 @@ def control_rate(records: list) -> dict[str, Any]:
 def hand_outside_box(records: list, lo: list[float], hi: list[float]) -> dict[str, Any]:
     """How often and how far the measured hand left ``robot.workspace``: robot-io clips each goal into the
     box, so a hand outside it is the arm overshooting its command (on a real arm: toward the table)."""
-    hands = np.array(
-        [
-            m.RobotState.FromString(data).ee_pos
-            for topic, _, _, data in records
-            if topic.endswith("/" + m.STATE.name)
-        ]
-    ).reshape(-1, 3)
+    hands = [
+        m.RobotState.FromString(data).ee_pos
+        for topic, _, _, data in records
+        if topic.endswith("/" + m.STATE.name)
+    ]
+    return outside_box(np.array(hands).reshape(-1, 3), lo, hi)
+
+
+def outside_box(hands: np.ndarray, lo: list[float], hi: list[float]) -> dict[str, Any]:
+    """The share of ``hands`` (N x 3) more than ``OUTSIDE_M`` outside the box, and the deepest."""
     beyond = np.maximum(np.asarray(lo) - hands, hands - np.asarray(hi)).max(axis=1, initial=0.0)
     return {
         "hand_outside_box_share": round(float(np.mean(beyond > OUTSIDE_M)), 4) if len(hands) else None,

@@ -121,14 +121,14 @@ def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
     from bus import messages as m
     from monitor import recording
 
+    recorded = [
+        m.Transition.FromString(data)
+        for topic, _, _, data in recording.read(path)
+        if topic.endswith("/" + m.TRANSITIONS.name)
+    ]
     by_episode: dict[int, list] = {}
-    seen: set[tuple[str, int]] = set()
-    for topic, _, _, data in recording.read(path):
-        if topic.endswith("/" + m.TRANSITIONS.name):
-            t = m.Transition.FromString(data)
-            if (t.stream, t.step) not in seen:
-                seen.add((t.stream, t.step))
-                by_episode.setdefault(t.episode, []).append(t)
+    for t in recording.each_tick_once(recorded):
+        by_episode.setdefault(t.episode, []).append(t)
     out = []
     for steps in by_episode.values():
         chained = all(np.allclose(a.next_obs, b.obs) for a, b in zip(steps, steps[1:], strict=False))

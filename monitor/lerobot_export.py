@@ -46,7 +46,7 @@ import numpy as np
 
 from bus import messages as m
 from common.errors import AdaptiveHError
-from monitor.recording import read
+from monitor.recording import each_tick_once, read
 
 TASK_TEXT = "reach the moving target with the end effector"
 CAMERA_KEY = "observation.images.camera"
@@ -222,20 +222,6 @@ def _episodes_of(transitions: list[m.Transition]) -> Iterator[list[m.Transition]
         yield run
 
 
-def _once(transitions: list[m.Transition]) -> list[m.Transition]:
-    """Each executed tick once. An actor publishes a Transition again to a learner that lacks it
-    (``deploy.transition_stream``), with a new ``seq`` and stamp, on the same stream with the same step:
-    the first copy, in stamp order, stands for the tick."""
-    seen: set[tuple] = set()
-    out = []
-    for tr in transitions:
-        ident = (tr.stream, tr.step)
-        if ident not in seen:
-            seen.add(ident)
-            out.append(tr)
-    return out
-
-
 def _check_steps(rec: Recording, transitions: list[m.Transition]) -> None:
     """Every executed tick once: a gap in the actor's step count is a lost Transition."""
     for a, b in zip(transitions, transitions[1:], strict=False):
@@ -309,7 +295,7 @@ def episodes(rec: Recording, camera: str = "auto") -> list[Episode]:
             f"{rec.path}: channel {rec.stream(m.TRANSITIONS).key}: no transitions recorded (the export "
             "reads the actor's: learner.execution actor)"
         )
-    transitions = _once(sorted(transitions, key=lambda tr: tr.stamp))
+    transitions = each_tick_once(sorted(transitions, key=lambda tr: tr.stamp))
     _check_steps(rec, transitions)
     finder, chunks, images = TickFinder(rec), _chunks(rec), Images(rec, camera)
     states, statuses = rec.stream(m.STATE), rec.stream(m.CHUNK_STATUS)

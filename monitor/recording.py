@@ -317,6 +317,20 @@ def replayable(records: list[tuple[str, str, int, bytes]]) -> list[tuple[str, st
     return [r for r in records if m.topic_of_key(r[0]) is not None]
 
 
+def each_tick_once(transitions: list[m.Transition]) -> list[m.Transition]:
+    """Each executed tick once. An actor publishes a Transition again to a learner that lacks it
+    (``deploy.transition_stream``), with a new ``seq`` and stamp, on the same stream with the same step:
+    the first copy, in the order given, stands for the tick."""
+    seen: set[tuple[str, int]] = set()
+    out = []
+    for tr in transitions:
+        ident = (tr.stream, tr.step)
+        if ident not in seen:
+            seen.add(ident)
+            out.append(tr)
+    return out
+
+
 def recorded_robot(key: str) -> str:
     """``<robot>`` of ``adaptiveh/<robot>/<topic>``."""
     parts = key.split("/")
