@@ -46,6 +46,9 @@ SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "real arm's settings (franka_limits.yaml)": ("configs/gaps/franka_limits.yaml", {}),
     "real arm's, command_lead_m 0.05": ("configs/gaps/franka_limits.yaml", {"command_lead_m": 0.05}),
     "real arm's, stream rest": ("configs/gaps/franka_limits.yaml", {"stream": "rest"}),
+    "real arm's, braking 0.5": ("configs/gaps/franka_limits.yaml", {"braking_m_s2": 0.5}),
+    "real arm's, braking 1.0": ("configs/gaps/franka_limits.yaml", {"braking_m_s2": 1.0}),
+    "rehearsal, braking 1.0": ("configs/franka_sim.yaml", {"braking_m_s2": 1.0}),
 }
 
 
@@ -55,8 +58,10 @@ def robot_config(path: str, change: dict[str, Any]) -> RobotConfig:
     robot = load_stack_config(ROOT / path).robot
     stream = {"stream": change["stream"]} if "stream" in change else {}
     franka = robot.franka.model_copy(update={"ip": HOST, "simulated_target": False, **stream})
-    lead = {"command_lead_m": change["command_lead_m"]} if "command_lead_m" in change else {}
-    return robot.model_copy(update={"franka": franka, **lead})
+    top = {
+        k: v for k, v in change.items() if k != "stream"
+    }  # robot-level keys (command_lead_m, braking_m_s2)
+    return robot.model_copy(update={"franka": franka, **top})
 
 
 def reach(controller: RobotController, config: RobotConfig) -> tuple[np.ndarray, list, list[float]]:

@@ -261,14 +261,23 @@ def control_rate(records: list) -> dict[str, Any]:
 
 
 def hand_outside_box(records: list, lo: list[float], hi: list[float]) -> dict[str, Any]:
-    """How often and how far the measured hand left ``robot.workspace``: robot-io clips each goal into the
-    box, so a hand outside it is the arm overshooting its command (on a real arm: toward the table)."""
-    hands = [
-        m.RobotState.FromString(data).ee_pos
-        for topic, _, _, data in records
-        if topic.endswith("/" + m.STATE.name)
-    ]
-    return outside_box(np.array(hands).reshape(-1, 3), lo, hi)
+    """How often and how far the measured hand left ``robot.workspace`` in the ticks that played an action
+    (each tick once): robot-io clips each goal into the box, so a hand outside it then is the arm overshooting
+    its command (on a real arm: toward the table). Homing (a joint-space move) and holds publish states too:
+    their deepest excursion is reported apart."""
+    playing: dict[int, Any] = {}
+    other = []
+    for topic, _, _, data in records:
+        if topic.endswith("/" + m.STATE.name):
+            s = m.RobotState.FromString(data)
+            if s.played_index >= 0:
+                playing.setdefault(s.tick, s.ee_pos)
+            else:
+                other.append(s.ee_pos)
+    homing = outside_box(np.array(other).reshape(-1, 3), lo, hi)
+    return outside_box(np.array(list(playing.values())).reshape(-1, 3), lo, hi) | {
+        "hand_outside_box_not_playing_max_m": homing["hand_outside_box_max_m"]
+    }
 
 
 def outside_box(hands: np.ndarray, lo: list[float], hi: list[float]) -> dict[str, Any]:

@@ -80,12 +80,26 @@ def test_the_handoff_is_compared_on_the_seeds_both_starts_ran():
 
 
 def test_the_hand_outside_the_workspace_box_is_counted_by_how_far():
-    """A hand within 1 cm of the box counts as inside (the clip's own rounding); one 4 cm under its floor
-    is out, and the deepest excursion is reported."""
+    """Over the ticks that played an action, each once: a hand within 1 cm of the box counts as inside (the
+    clip's own rounding); one 4 cm under its floor is out, and the deepest excursion is reported. States while
+    homing count apart."""
     from bus import messages as m
 
     hands = [(0.5, 0.0, 0.3), (0.5, 0.0, 0.045), (0.5, 0.0, 0.01), (0.85, 0.0, 0.3)]
-    records = [("arm/state", "RobotState", 0, m.RobotState(ee_pos=h).SerializeToString()) for h in hands]
+    records = [
+        ("arm/state", "RobotState", 0, m.RobotState(ee_pos=h, tick=t, played_index=0).SerializeToString())
+        for t, h in enumerate(hands)
+    ]
+    # a state published again for the same tick, and states while homing (no action played)
+    records.append(("arm/state", "RobotState", 0, m.RobotState(ee_pos=hands[2], tick=2).SerializeToString()))
+    for h in [(0.5, 0.0, 0.9), (0.5, 0.0, 0.9)]:
+        records.append(
+            ("arm/state", "RobotState", 0, m.RobotState(ee_pos=h, played_index=-1).SerializeToString())
+        )
     records.append(("arm/target", "Target", 0, b"not a state"))
     out = load_bench().hand_outside_box(records, [0.2, -0.45, 0.05], [0.8, 0.45, 0.7])
-    assert out == {"hand_outside_box_share": 0.5, "hand_outside_box_max_m": 0.05}
+    assert out == {
+        "hand_outside_box_share": 0.5,
+        "hand_outside_box_max_m": 0.05,
+        "hand_outside_box_not_playing_max_m": 0.2,
+    }
