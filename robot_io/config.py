@@ -120,13 +120,6 @@ class RobotConfig(Section):
     # of the hand, so it never runs away from a slow or blocked arm. On franky-sim 0.05 capped the hand at
     # ~15 mm a period, 0.1 let it reach ~25 (docs/robot_interface.md); the mock tracks within ~1 cm.
     command_lead_m: float = Field(0.1, gt=0, le=0.3)
-    braking_m_s2: float | None = Field(
-        None,
-        gt=0,
-        description="the hand's deceleration (m/s^2) the arm reaches at its dynamics: each goal is kept the"
-        " measured hand's braking distance (v^2 / 2a) from the box faces the hand moves toward, so an arm"
-        " that overshoots its command stops inside the box; null: the arm stops within a period (the mock)",
-    )
     # Longest chunk (plan) accepted: 25 s at 20 Hz, far beyond any learner's horizon (h_max 50); a longer
     # one is a learner bug and is refused whole, which also bounds the queue.
     max_plan_actions: int = Field(500, ge=1)

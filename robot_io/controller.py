@@ -73,7 +73,7 @@ class RobotController:
         self.queue = ActionQueue()
         self.gate = CommandGate(config.max_chunk_seq_gap)
         self._refusals = Throttle("refused", EVENT_EVERY_S)
-        self.safety = Safety(config.workspace, config.watchdog_timeout_s, config.braking_m_s2)
+        self.safety = Safety(config.workspace, config.watchdog_timeout_s)
         self.recovery = RecoveryPolicy(config.franka.auto_recover, config.franka.auto_recover_limit)
         self.box = (np.asarray(config.workspace.lo), np.asarray(config.workspace.hi))
         self.ik = DifferentialIK(
@@ -359,12 +359,10 @@ class RobotController:
             return q_cmd, ee_cmd, ee
         return q, ee, ee
 
-    def _goal(
-        self, ee0: np.ndarray, ee_measured: np.ndarray, hand_velocity: np.ndarray, action: np.ndarray
-    ) -> np.ndarray:
+    def _goal(self, ee0: np.ndarray, ee_measured: np.ndarray, action: np.ndarray) -> np.ndarray:
         """``ee0 + action``, held within ``command_lead_m`` of the measured end effector (a slow arm's
-        command never runs away from it, and a blocked arm stops it), clipped into the workspace box less
-        the moving hand's braking distance (``Safety.clip_goal``). Leading by a bounded amount, instead of re-anchoring on the measured arm when the
+        command never runs away from it, and a blocked arm stops it), clipped into
+        the workspace box. Leading by a bounded amount, instead of re-anchoring on the measured arm when the
         command got ahead, keeps the command monotone: re-anchoring made it jump back and forth a step
         each period on franky-sim, and the arm hardly moved (docs/robot_interface.md)."""
         goal = ee0 + action
@@ -372,14 +370,14 @@ class RobotController:
         norm = float(np.linalg.norm(lead))
         if norm > self.config.command_lead_m:
             goal = ee_measured + lead * (self.config.command_lead_m / norm)
-        return self.safety.clip_goal(goal, hand_velocity)
+        return self.safety.clip_goal(goal)
 
     def _execute(self, action: np.ndarray) -> np.ndarray:
         """Displace the end-effector goal by ``action`` (≤ max_step_m), clip, solve IK, check, send."""
         action = cap_step_length(np.asarray(action, float).reshape(3), self.config.max_step_m)
         js = self.backend.read_state()
         q0, ee0, ee_measured = self._anchor(js.q, js.q_cmd)
-        goal = self._goal(ee0, ee_measured, self.kin.ee_velocity(js.q, js.dq), action)
+        goal = self._goal(ee0, ee_measured, action)
         start_error = float(np.linalg.norm(ee0 - goal))
         result = self.ik.solve(q0, goal, self.config.period)
         # Out of reach: the QP ends far from the goal and cannot get any closer (limits are active).

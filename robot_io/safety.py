@@ -26,12 +26,9 @@ class SafetyRecord:
 
 
 class Safety:
-    def __init__(
-        self, workspace: WorkspaceBox, watchdog_timeout_s: float, braking_m_s2: float | None = None
-    ) -> None:
+    def __init__(self, workspace: WorkspaceBox, watchdog_timeout_s: float) -> None:
         self.lo = np.asarray(workspace.lo, float)
         self.hi = np.asarray(workspace.hi, float)
-        self.braking_m_s2 = braking_m_s2
         self.watchdog_timeout_s = watchdog_timeout_s
         self.reasons: set[str] = set()
         self.last_command = None  # time of the last fresh command; None before the first
@@ -114,23 +111,11 @@ class Safety:
         return False
 
     # -- workspace -----------------------------------------------------------------------------------
-    def clip_goal(self, goal: np.ndarray, hand_velocity: np.ndarray | None = None) -> np.ndarray:
-        """Clip an end-effector goal into the box, less the hand's braking distance on each face it moves
-        toward (``braking_m_s2``); an event when clipping starts."""
-        lo, hi = self.lo, self.hi
-        if self.braking_m_s2 is not None and hand_velocity is not None:
-            lo, hi = braking_box(lo, hi, np.asarray(hand_velocity, float), self.braking_m_s2)
-        clipped = np.clip(goal, lo, hi)
+    def clip_goal(self, goal: np.ndarray) -> np.ndarray:
+        """Clip an end-effector goal into the box; an event when clipping starts."""
+        clipped = np.clip(goal, self.lo, self.hi)
         outside = bool(np.any(np.abs(clipped - goal) > 1e-9))
         if outside and not self._clipping:
             self.report("workspace", f"goal {np.round(goal, 3).tolist()} clipped to the workspace box")
         self._clipping = outside
         return clipped
-
-
-def braking_box(lo: np.ndarray, hi: np.ndarray, velocity: np.ndarray, deceleration: float) -> tuple:
-    """The box whose faces stand each axis's braking distance ``v² / 2a`` in from those the hand moves
-    toward: a goal there lets a streamed arm, which brakes at ``a`` from the speed it has, stop inside the
-    box. At most half the box's width in, so the box never closes."""
-    reach = np.minimum(velocity**2 / (2.0 * deceleration), (hi - lo) / 2.0)
-    return lo + np.where(velocity < 0, reach, 0.0), hi - np.where(velocity > 0, reach, 0.0)
