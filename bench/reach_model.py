@@ -114,8 +114,8 @@ def open_loop_errors(episodes, model, dt: float, horizon: int | None = None) -> 
 
 
 def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(observations, executed raw actions) of each whole ``EPISODE``-step episode of consecutive ticks in
-    a stack recording's transitions (an episode with an outage or a restart in it is left out). A
+    """(observations, executed raw actions) of each whole ``EPISODE``-step episode (or part of a longer one)
+    of consecutive ticks in a stack recording's transitions (an episode with an outage or a restart in it is left out). A
     transition the actor sent again (``deploy.transition_stream``: the learner had not acked it yet) is
     recorded twice and counted once, as the learner counts it."""
     from bus import messages as m
@@ -132,9 +132,12 @@ def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
     out = []
     for steps in by_episode.values():
         chained = all(np.allclose(a.next_obs, b.obs) for a, b in zip(steps, steps[1:], strict=False))
-        if len(steps) == EPISODE and chained:
-            obs = np.asarray([steps[0].obs] + [t.next_obs for t in steps], float)
-            out.append((obs, np.asarray([t.raw_action for t in steps], float)))
+        if len(steps) % EPISODE or not chained:
+            continue
+        for k in range(0, len(steps), EPISODE):  # a longer episode (a real arm's 100 steps) in 50-step parts
+            part = steps[k : k + EPISODE]
+            obs = np.asarray([part[0].obs] + [t.next_obs for t in part], float)
+            out.append((obs, np.asarray([t.raw_action for t in part], float)))
     return out
 
 
