@@ -114,10 +114,10 @@ def open_loop_errors(episodes, model, dt: float, horizon: int | None = None) -> 
 
 
 def recorded_episodes(path: str) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(observations, executed raw actions) of each whole ``EPISODE``-step episode (or part of a longer one)
-    of consecutive ticks in a stack recording's transitions (an episode with an outage or a restart in it is left out). A
-    transition the actor sent again (``deploy.transition_stream``: the learner had not acked it yet) is
-    recorded twice and counted once, as the learner counts it."""
+    """(observations, executed raw actions) of each whole ``EPISODE``-step episode (or part of a longer
+    one) of consecutive ticks in a stack recording's transitions (an episode with an outage or a restart in
+    it is left out). A transition the actor sent again (``deploy.transition_stream``: the learner had not
+    acked it yet) is recorded twice and counted once, as the learner counts it."""
     from bus import messages as m
     from monitor import recording
 
