@@ -9,7 +9,9 @@ Settings: the robot sections of ``configs/franka_sim.yaml`` (the rehearsal: fran
 shipped and with the other ``franka.stream`` or a shorter ``command_lead_m``. Per setting: the share of
 ticks the hand was more than 1 cm outside the box and how far at most, its lowest point, the periods to
 come within 2 cm of each goal (``null``: not in 80), and the hand's largest distance from a goal once it
-had arrived.
+had arrived. Then homing while the hand moves down (``DOWN_PERIODS`` steps from ``HIGH`` toward the table,
+then robot-io's reset at once, as an episode that ends mid-motion): how far the hand went on down, out of
+the box, and the seconds homing took.
 
     python bench/franky_box.py            # ~1 min a setting; results/franky_box.json, key burners_0
     python bench/franky_box.py --burn 2   # beside 2 busy loops (a loaded 2-core host): key burners_2
@@ -45,6 +47,8 @@ ARRIVED_M = 0.02
 PERIODS = 80
 GOALS = [(0.55, 0.25, 0.15), (0.4, -0.25, 0.4), (0.6, 0.2, 0.13), (0.35, 0.0, 0.45), (0.6, -0.25, 0.12)]
 GOALS += [(0.45, 0.25, 0.35)]
+HIGH, TABLE = (0.5, 0.0, 0.3), (0.6, 0.3, 0.0)
+DOWN_PERIODS = 28
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "rehearsal (franka_sim.yaml)": ("configs/franka_sim.yaml", {}),
     "rehearsal, command_lead_m 0.05": ("configs/franka_sim.yaml", {"command_lead_m": 0.05}),
@@ -68,10 +72,12 @@ def robot_config(path: str, change: dict[str, Any]) -> RobotConfig:
     return robot.model_copy(update={"franka": franka, **lead})
 
 
-def reach(controller: RobotController, config: RobotConfig) -> tuple[np.ndarray, list, list[float]]:
+def reach(
+    controller: RobotController, config: RobotConfig, goals: list = GOALS
+) -> tuple[np.ndarray, list, list[float]]:
     """The hand each period, the periods to arrive at each goal, and its distances to a goal once there."""
     hands, arrivals, after = [], [], []
-    for goal in np.asarray(GOALS):
+    for goal in np.asarray(goals):
         arrived = None
         for k in range(PERIODS):
             t0 = time.monotonic()
@@ -88,12 +94,37 @@ def reach(controller: RobotController, config: RobotConfig) -> tuple[np.ndarray,
     return np.array(hands), arrivals, after
 
 
+def home_while_moving_down(controller: RobotController, config: RobotConfig) -> dict[str, Any]:
+    """From ``HIGH``, step toward the table for ``DOWN_PERIODS``, then home (robot-io's reset) at once:
+    how far the hand went on down, and the seconds homing took."""
+    reach(controller, config, [HIGH])
+    for _ in range(DOWN_PERIODS):
+        t0 = time.monotonic()
+        away = np.asarray(TABLE) - controller.state().ee_pos
+        controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
+        time.sleep(max(0.0, config.period - (time.monotonic() - t0)))
+    start = controller.state()
+    hands = [start.ee_pos.copy()]
+    t0 = time.monotonic()
+    controller.reset(while_homing=lambda state: hands.append(state.ee_pos.copy()))
+    arm = np.array(hands)
+    box = outside_box(arm, list(config.workspace.lo), list(config.workspace.hi))
+    return {
+        "hand_z_at_reset_m": round(float(start.ee_pos[2]), 3),
+        "hand_down_speed_m_s": round(float(-start.ee_vel[2]), 3),
+        "hand_min_z_m": round(float(arm[:, 2].min()), 3),
+        "outside_box_max_m": box["hand_outside_box_max_m"],
+        "seconds": round(time.monotonic() - t0, 1),
+    }
+
+
 def run(label: str, path: str, change: dict[str, Any]) -> dict[str, Any]:
     config = robot_config(path, change)
     controller = RobotController(config)
     try:
         controller.reset()
         hands, arrivals, after = reach(controller, config)
+        homing = home_while_moving_down(controller, config)
     finally:
         controller.close()
     box = outside_box(hands, list(config.workspace.lo), list(config.workspace.hi))
@@ -109,6 +140,7 @@ def run(label: str, path: str, change: dict[str, Any]) -> dict[str, Any]:
         "box_floor_z_m": float(config.workspace.lo[2]),
         "periods_to_2cm": arrivals,
         "after_arrival_max_m": round(max(after), 3) if after else None,
+        "homing_while_moving_down": homing,
     }
 
 
@@ -133,7 +165,8 @@ def main() -> int:
         "command": " ".join(["python bench/franky_box.py", *sys.argv[1:]]),
         "rows": rows,
     }
-    summary = {"periods_per_goal": PERIODS, "goals": GOALS}
+    homing = {"homing_from": HIGH, "homing_after_periods_toward": [DOWN_PERIODS, TABLE]}
+    summary = {"periods_per_goal": PERIODS, "goals": GOALS, **homing}
     args.out.write_text(json.dumps(summary | dict(sorted(out.items())), indent=1))
     print(f"wrote {args.out}")
     return 0
@@ -147,6 +180,13 @@ def run_on_franky_sim(n: int, of: int, label: str, path: str, change: dict[str, 
         f"  outside the box {r['hand_outside_box_share']:.1%} of ticks, at most"
         f" {r['hand_outside_box_max_m'] * 100:.1f} cm; lowest z {r['hand_min_z_m']:.3f} m; periods to"
         f" 2 cm {r['periods_to_2cm']}; after arriving at most {r['after_arrival_max_m']} m",
+        flush=True,
+    )
+    h = r["homing_while_moving_down"]
+    print(
+        f"  homing from z {h['hand_z_at_reset_m']:.3f} m, moving down at {h['hand_down_speed_m_s']} m/s:"
+        f" lowest z {h['hand_min_z_m']:.3f} m, out of the box at most {h['outside_box_max_m'] * 100:.1f} cm,"
+        f" {h['seconds']} s",
         flush=True,
     )
     return r

@@ -78,6 +78,7 @@ JOINT_DYNAMICS_LIMITS = {
 # (bench/franka_sim_brakes.py --burn 3). 0.4 (4 rad/s^2 on an FR3) still stills a 0.2 rad/s joint within
 # two control periods; the jerk is franka.dynamics' default.
 HOLD_DYNAMICS = (1.0, 0.4, 0.3)
+AT_REST_RAD_S = 1e-3
 
 
 def _scheduling() -> tuple[int, int] | None:
@@ -310,31 +311,50 @@ class FrankyBackend:
         while_moving: Callable[[], None] | None = None,
         timeout_s: float = 30.0,
     ) -> None:
-        """Move home point to point at ``franka.home_dynamics`` and wait there (``while_moving`` about once
-        a control period); a fault raises."""
+        """Brake to rest, then move home point to point at ``franka.home_dynamics`` and wait there
+        (``while_moving`` about once a control period); a fault raises.
+
+        The braking comes first: the move home starts from the arm's motion at its own, gentler dynamics,
+        and from a hand heading down it ran the hand onto the table (docs/howto/real_arm.md)."""
         if self.scene is not None:
             self.scene.reset(seed)
         if self.fault() is not None:
             raise RuntimeError(f"franka fault, release to recover first: {self._fault}")
         f = self.franky
         home = f.JointWaypoint(f.JointState(np.asarray(q_home, float)))
+        deadline = time.monotonic() + timeout_s
+        self.hold()
+        if self._fault is not None:
+            raise RuntimeError(f"franka fault while braking to go home: {self._fault}")
         self._last_target = None
         self._stopping = True
         try:
+            self._wait(deadline, "come to rest", while_moving, until=self._at_rest)
             with self._loop_priority():
                 self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
-            deadline = time.monotonic() + timeout_s
-            while not self.robot.join_motion(timeout=self.config.period):
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"franka did not reach home within {timeout_s} s")
-                if while_moving is not None:
-                    while_moving()
+            self._wait(deadline, "reach home", while_moving, until=lambda: self.robot.join_motion(timeout=0))
             self._hold_at(np.asarray(q_home, float))
         except TimeoutError:
             raise
         except Exception as exc:
             self._set_fault(exc)
             raise RuntimeError(f"franka fault while going home: {self._fault}") from exc
+
+    def _at_rest(self) -> bool:
+        """The commanded motion has stopped (the hold's, which never ends by itself)."""
+        return float(np.max(np.abs(np.asarray(self.robot.state.dq_d, float)))) < AT_REST_RAD_S
+
+    def _wait(
+        self, deadline: float, what: str, while_moving: Callable[[], None] | None, until: Callable[[], bool]
+    ) -> None:
+        """Poll ``until`` once a control period, calling ``while_moving`` meanwhile; past ``deadline`` a
+        ``TimeoutError`` names ``what`` the arm did not do."""
+        while not until():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"franka did not {what} in time")
+            if while_moving is not None:
+                while_moving()
+            time.sleep(self.config.period)
 
     def step(self) -> None:
         """The arm moves on franky's own loop; only the scripted target advances with the period."""

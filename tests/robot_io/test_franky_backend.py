@@ -7,6 +7,7 @@ real time on a loaded machine, and the arm's stopping time is a property of the 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from robot_io.backends.protocol import Fault, JointState
 from robot_io.config import RobotConfig
 from robot_io.controller import RobotController
 
+ROOT = Path(__file__).resolve().parents[2]
 HOST = f"127.0.{np.random.randint(1, 250)}.{np.random.randint(2, 250)}"
 PERIOD = 0.05
 
@@ -146,3 +148,35 @@ def test_other_faults_hold_until_a_release_whose_recovery_succeeds():
     assert c.safety.mode == "running"
     c.obey("the-learner")
     assert c.push_chunk("the-learner", 1, np.zeros((2, 3)), 0.0) == "accepted"
+
+
+def test_reset_brakes_a_hand_moving_down_before_its_gentler_move_home():
+    """The move home runs at ``franka.home_dynamics``: started while the hand heads for the table, it
+    carried the hand ~15 cm on (at the real arm's settings on franky-sim), under the box's floor. Reset
+    brakes first: the hand goes on by its braking distance, a few centimetres."""
+    pytest.importorskip("franky_sim")
+    from franka_simulators import FrankySimServer
+
+    from deploy.config import load_stack_config
+
+    host = f"127.0.{np.random.randint(1, 250)}.{np.random.randint(2, 250)}"
+    robot = load_stack_config(ROOT / "configs/gaps/franka_limits.yaml").robot
+    franka = robot.franka.model_copy(update={"ip": host, "simulated_target": False})
+    config = robot.model_copy(update={"franka": franka})
+    with FrankySimServer(host):
+        controller = RobotController(config)
+        try:
+            controller.reset()
+            for goal, periods in (((0.5, 0.0, 0.3), 80), ((0.6, 0.3, 0.0), 28)):  # then toward the table
+                for _ in range(periods):
+                    away = np.asarray(goal) - controller.state().ee_pos
+                    controller.step_action(away * min(1.0, config.max_step_m / np.linalg.norm(away)))
+                    time.sleep(config.period)
+            start = controller.state()
+            assert start.ee_vel[2] < -0.1, "the hand should be moving down"
+            lowest = [start.ee_pos[2]]
+            controller.reset(while_homing=lambda state: lowest.append(state.ee_pos[2]))
+        finally:
+            controller.close()
+    went_on = start.ee_pos[2] - min(lowest)
+    assert went_on < 0.06, f"the hand went on {100 * went_on:.1f} cm down after homing began"
