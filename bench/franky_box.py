@@ -9,8 +9,8 @@ Settings: the robot sections of ``configs/franka_sim.yaml`` (the rehearsal: fran
 shipped and with the other ``franka.stream`` or a shorter ``command_lead_m``. Per setting: the share of
 ticks the hand was more than 1 cm outside the box and how far at most, its lowest point, the periods to
 come within 2 cm of each goal (``null``: not in 80), and the hand's largest distance from a goal once it
-had arrived. Then homing while the hand moves down (``DOWN_PERIODS`` steps from ``HIGH`` toward the table,
-then robot-io's reset at once, as an episode that ends mid-motion): how far the hand went on down, out of
+had arrived. Then homing while the hand moves down (from ``HIGH`` toward the table, robot-io's reset as the
+hand passes ``HOMING_AT_Z``, as an episode that ends mid-motion): how far the hand went on down, out of
 the box, and the seconds homing took.
 
     python bench/franky_box.py            # ~1 min a setting; results/franky_box.json, key burners_0
@@ -48,7 +48,7 @@ PERIODS = 80
 GOALS = [(0.55, 0.25, 0.15), (0.4, -0.25, 0.4), (0.6, 0.2, 0.13), (0.35, 0.0, 0.45), (0.6, -0.25, 0.12)]
 GOALS += [(0.45, 0.25, 0.35)]
 HIGH, TABLE = (0.5, 0.0, 0.3), (0.6, 0.3, 0.0)
-DOWN_PERIODS = 28
+HOMING_AT_Z = 0.15  # 10 cm above the box's floor, where a hand heading down still has room
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
     "rehearsal (franka_sim.yaml)": ("configs/franka_sim.yaml", {}),
     "rehearsal, command_lead_m 0.05": ("configs/franka_sim.yaml", {"command_lead_m": 0.05}),
@@ -95,10 +95,10 @@ def reach(
 
 
 def home_while_moving_down(controller: RobotController, config: RobotConfig) -> dict[str, Any]:
-    """From ``HIGH``, step toward the table for ``DOWN_PERIODS``, then home (robot-io's reset) at once:
-    how far the hand went on down, and the seconds homing took."""
+    """From ``HIGH``, step toward the table until the hand is down to ``HOMING_AT_Z``, then home (robot-io's
+    reset) at once: how far the hand went on down, and the seconds homing took."""
     reach(controller, config, [HIGH])
-    for _ in range(DOWN_PERIODS):
+    while controller.state().ee_pos[2] > HOMING_AT_Z:
         t0 = time.monotonic()
         away = np.asarray(TABLE) - controller.state().ee_pos
         controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
@@ -165,7 +165,7 @@ def main() -> int:
         "command": " ".join(["python bench/franky_box.py", *sys.argv[1:]]),
         "rows": rows,
     }
-    homing = {"homing_from": HIGH, "homing_after_periods_toward": [DOWN_PERIODS, TABLE]}
+    homing = {"homing_from": HIGH, "homing_toward": TABLE, "homing_at_z_m": HOMING_AT_Z}
     summary = {"periods_per_goal": PERIODS, "goals": GOALS, **homing}
     args.out.write_text(json.dumps(summary | dict(sorted(out.items())), indent=1))
     print(f"wrote {args.out}")
