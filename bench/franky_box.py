@@ -72,6 +72,16 @@ def robot_config(path: str, change: dict[str, Any]) -> RobotConfig:
     return robot.model_copy(update={"franka": franka, **lead})
 
 
+def step_toward(controller: RobotController, config: RobotConfig, goal: np.ndarray) -> np.ndarray:
+    """One period of the scripted reacher: a step of ``max_step_m`` from the measured hand toward ``goal``;
+    the hand after it."""
+    t0 = time.monotonic()
+    away = goal - controller.state().ee_pos
+    controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
+    time.sleep(max(0.0, config.period - (time.monotonic() - t0)))
+    return controller.state().ee_pos.copy()
+
+
 def reach(
     controller: RobotController, config: RobotConfig, goals: list = GOALS
 ) -> tuple[np.ndarray, list, list[float]]:
@@ -80,11 +90,7 @@ def reach(
     for goal in np.asarray(goals):
         arrived = None
         for k in range(PERIODS):
-            t0 = time.monotonic()
-            away = goal - controller.state().ee_pos
-            controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
-            time.sleep(max(0.0, config.period - (time.monotonic() - t0)))
-            hand = controller.state().ee_pos.copy()
+            hand = step_toward(controller, config, goal)
             hands.append(hand)
             if arrived is None and np.linalg.norm(goal - hand) < ARRIVED_M:
                 arrived = k + 1
@@ -98,11 +104,8 @@ def home_while_moving_down(controller: RobotController, config: RobotConfig) -> 
     """From ``HIGH``, step toward the table until the hand is down to ``HOMING_AT_Z``, then home (robot-io's
     reset) at once: how far the hand went on down, and the seconds homing took."""
     reach(controller, config, [HIGH])
-    while controller.state().ee_pos[2] > HOMING_AT_Z:
-        t0 = time.monotonic()
-        away = np.asarray(TABLE) - controller.state().ee_pos
-        controller.step_action(away * min(1.0, config.max_step_m / max(np.linalg.norm(away), 1e-9)))
-        time.sleep(max(0.0, config.period - (time.monotonic() - t0)))
+    while step_toward(controller, config, np.asarray(TABLE))[2] > HOMING_AT_Z:
+        pass
     start = controller.state()
     hands = [start.ee_pos.copy()]
     t0 = time.monotonic()
