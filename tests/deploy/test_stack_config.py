@@ -212,7 +212,7 @@ def test_the_plan_model_tracks_as_the_configured_arm_does():
     obs[0:3] = (0.4, 0.0, 0.4)
     franky = ReachSpec(env_settings(load_stack_config("configs/franka_sim.yaml")))
     mock = ReachSpec(env_settings(load_stack_config("configs/sim.yaml")))
-    measured = ArmTracking(1.175, 0.02, 0.15)
+    measured = ArmTracking(1.5, 0.0075, 0.535)
     assert franky.settings.tracking == measured and mock.settings.tracking == TRACKING
     np.testing.assert_allclose(
         franky.predict_next(obs, step), predict_reach(obs, step, 0.05, tracking=measured)
