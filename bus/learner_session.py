@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import secrets
+import threading
 
 from bus import messages as m
 from bus.transport import Bus
@@ -39,10 +40,11 @@ class LearnerSession:
         chunk.session = self.id
         return self._pub(chunk), chunk.stamp
 
-    def reset(self, seed: int, timeout: float) -> m.ResetReply:
-        """Ask robot-io for a new episode, taking the arm over if another session had it."""
+    def reset(self, seed: int, timeout: float, cancel: threading.Event | None = None) -> m.ResetReply:
+        """Ask robot-io for a new episode, taking the arm over if another session had it; ``cancel`` set
+        gives up waiting for the reply (``bus.transport.QueryCancelled``)."""
         request = m.ResetRequest(seed=seed, session=self.id, next_chunk=self._pub.next_seq)
-        return self.bus.query(m.RESET, request, timeout=timeout)
+        return self.bus.query(m.RESET, request, timeout=timeout, cancel=cancel)
 
     def mine(self, msg: m.RobotState | m.ChunkStatus) -> bool:
         """The state names this session as the one obeyed, or the status is about one of its chunks."""

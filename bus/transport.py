@@ -28,12 +28,18 @@ from bus.messages import Message, MessageError, Service, Topic
 from bus.security import AuthConfig, RouterConfig, TlsConfig
 from bus.signing import Verifier, sign, signed
 from common.config import Section
+from common.errors import AdaptiveHError
 from common.throttle import Throttle
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
 R = TypeVar("R", bound=Message)
 T = TypeVar("T")
+QUERY_POLL_S = 0.01  # how often a query waiting for its reply looks at its cancel event
+
+
+class QueryCancelled(AdaptiveHError, RuntimeError):
+    """A query given up on its caller's word (``Bus.query(cancel=...)``) before a reply came."""
 
 
 Endpoint = Annotated[str, Field(pattern=r"^[a-z][a-z0-9-]*/.+")]
@@ -540,21 +546,33 @@ class Bus:
         request: M,
         timeout: float = 10.0,
         seal: Callable[[M], None] | None = None,
+        cancel: threading.Event | None = None,
     ) -> R:
         """Send ``request`` (stamped, then ``seal``-ed) and return the first reply; raises TimeoutError or
-        MessageError."""
+        MessageError, and QueryCancelled as soon as ``cancel`` is set (a stopping node does not wait out
+        a reply that takes seconds, e.g. a reset while the arm homes)."""
         request.stamp = time.time()
         sealer = self._sealer(service.request, seal)
         if sealer is not None:
             sealer(request)
-        payload = request.SerializeToString()
-        for reply in self.session.get(self.key(service), payload=payload, timeout=timeout):
-            if reply.ok is not None:
+        key = self.key(service)
+        replies = self.session.get(key, payload=request.SerializeToString(), timeout=timeout)
+        cancel = cancel or threading.Event()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                reply = replies.try_recv()
+            except zenoh.ZError:  # the query is over (no queryable, or each one's reply is in)
+                break
+            if reply is not None and reply.ok is not None:
                 return messages.decode(reply.ok.payload.to_bytes(), service.reply)
-            raise MessageError(
-                f"{self.key(service)}: error reply: {reply.err.payload.to_bytes().decode(errors='replace')}"
-            )
-        raise TimeoutError(f"no reply on {self.key(service)} within {timeout} s")
+            if reply is not None:
+                raise MessageError(
+                    f"{key}: error reply: {reply.err.payload.to_bytes().decode(errors='replace')}"
+                )
+            if cancel.wait(QUERY_POLL_S):
+                raise QueryCancelled(f"{key}: the query was cancelled before a reply")
+        raise TimeoutError(f"no reply on {key} within {timeout} s")
 
     def declare_alive(self, name: str) -> zenoh.LivelinessToken:
         """Declare this process's liveliness token ``adaptiveh/<robot>/alive/<name>``."""

@@ -19,7 +19,7 @@ import numpy as np
 
 from bus import messages as m
 from bus.learner_session import REFUSALS, LearnerSession
-from bus.transport import Bus
+from bus.transport import Bus, QueryCancelled
 from common.errors import AdaptiveHError
 from deploy.plan_channel import PlanBook
 from learner.plans import Plan
@@ -217,10 +217,14 @@ class RobotLink:
             if self.stop.is_set():
                 raise LinkStopped("stopped while resetting the robot")
             try:
-                reply = self.session.reset(seed if seed is not None else -1, timeout=min(10.0, timeout_s))
+                reply = self.session.reset(
+                    seed if seed is not None else -1, timeout=min(10.0, timeout_s), cancel=self.stop
+                )
                 if reply.ok:
                     break
                 err = reply.detail
+            except QueryCancelled as exc:
+                raise LinkStopped("stopped while resetting the robot") from exc
             except (TimeoutError, m.MessageError) as exc:
                 err = str(exc)
             if self.robot_mode in SUSPENDED:

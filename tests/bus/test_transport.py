@@ -10,7 +10,7 @@ from loopback import unique_name
 from polling import wait_until
 
 from bus import messages as m
-from bus.transport import Bus, ZenohConfig, open_session
+from bus.transport import Bus, QueryCancelled, ZenohConfig, open_session
 
 
 @pytest.fixture
@@ -67,6 +67,31 @@ def test_queryable_answers_typed_and_refuses_bad_requests(buses):
     assert a.bad_messages == {"reset": 1}
 
 
+def test_a_query_is_given_up_at_once_when_cancelled(buses):
+    """A stopping node does not wait out a slow reply (a reset while the arm homes took over 5 s, and the
+    actor's thread outlived its stop); a reply that comes in time is returned as before."""
+    a, b = buses
+    release = threading.Event()
+
+    def on_reset(req: m.ResetRequest) -> m.ResetReply:
+        if req.seed == 1:
+            release.wait(10.0)
+        return m.ResetReply(ok=True, detail=f"seed {req.seed}")
+
+    a.queryable(m.RESET, on_reset)
+    time.sleep(0.3)
+    assert b.query(m.RESET, m.ResetRequest(seed=2), timeout=5, cancel=threading.Event()).detail == "seed 2"
+    cancel = threading.Event()
+    threading.Timer(0.3, cancel.set).start()
+    start = time.monotonic()
+    with pytest.raises(QueryCancelled, match="reset: the query was cancelled"):
+        b.query(m.RESET, m.ResetRequest(seed=1), timeout=10, cancel=cancel)
+    assert time.monotonic() - start < 2.0
+    release.set()
+    with pytest.raises(TimeoutError, match="no reply on .*nothing"):
+        b.query(m.Service("nothing", m.ResetRequest, m.ResetReply), m.ResetRequest(seed=3), timeout=1)
+
+
 def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
     """SIGSTOP keeps the peer's socket open, so only the lease tells: 1 s by default (Zenoh's own 10 s
     left an arm driven by a frozen learner's last plan that long)."""
@@ -80,7 +105,7 @@ def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
         [
             sys.executable,
             "-c",
-            "import time\nfrom bus.transport import Bus, ZenohConfig, open_session\n"
+            "import time\nfrom bus.transport import Bus, QueryCancelled, ZenohConfig, open_session\n"
             f"b = Bus(open_session(ZenohConfig(connect=({endpoint!r},))), {name!r})\n"
             "b.declare_alive('learner'); print('up', flush=True); time.sleep(60)",
         ],
