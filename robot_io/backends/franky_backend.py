@@ -36,7 +36,7 @@ import importlib
 import logging
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from types import ModuleType
 from typing import Any
 
@@ -146,7 +146,7 @@ class FrankyBackend:
         acceleration, jerk = JOINT_DYNAMICS_LIMITS[self.description.model.name]
         for limit, ours in ((robot.joint_acceleration_limit, acceleration), (robot.joint_jerk_limit, jerk)):
             limit.set(np.minimum(np.asarray(limit.max, float), ours))  # franky refuses more than its max
-        robot.relative_dynamics_factor = f.RelativeDynamicsFactor(*self.fc.dynamics)
+        robot.relative_dynamics_factor = f.RelativeDynamicsFactor(1.0, 1.0, 1.0)  # each motion has its own
         robot.set_collision_behavior(
             list(self.fc.lower_torque_thresholds),
             list(self.fc.upper_torque_thresholds),
@@ -243,10 +243,8 @@ class FrankyBackend:
                 f.JointWaypoint(f.JointState(coast)),
             ]
         self._last_target = q.copy()
-        if self._stopping:  # leaving a hold: back to the streaming dynamics
-            self.robot.relative_dynamics_factor = f.RelativeDynamicsFactor(*self.fc.dynamics)
         self._stopping = False
-        self._move(f.JointWaypointMotion(waypoints))
+        self._move(f.JointWaypointMotion(waypoints, self._dynamics(self.fc.dynamics)))
 
     def hold(self) -> None:
         """Brake to rest where the *command* can stop at full deceleration. franky's JointStopMotion
@@ -270,14 +268,20 @@ class FrankyBackend:
         # come back.
         duration = np.max(np.abs(dq_d) / amax + amax / jmax + np.abs(ddq_d) / jmax)
         stop = np.clip(q_d + dq_d * duration / 2, self.lower, self.upper)
-        self.robot.relative_dynamics_factor = self.franky.RelativeDynamicsFactor(*HOLD_DYNAMICS)
         self._hold_at(stop)
 
     def _hold_at(self, q: np.ndarray) -> None:
         """Go to ``q`` and keep commanding it (the motion never ends by itself), so a held arm stays
         under position control rather than idle; the next command preempts it."""
         f = self.franky
-        self._move(f.JointWaypointMotion([f.JointWaypoint(f.JointState(q))], 1.0, False))
+        self._move(
+            f.JointWaypointMotion([f.JointWaypoint(f.JointState(q))], self._dynamics(HOLD_DYNAMICS), False)
+        )
+
+    def _dynamics(self, factors: Sequence[float]) -> Any:
+        """franky's relative dynamics factor for one motion: each motion carries its own (the robot-wide
+        factor stays 1), so a hold's braking never carries over into the next motion."""
+        return self.franky.RelativeDynamicsFactor(*(float(x) for x in factors))
 
     def fault(self) -> Fault | None:
         if self._fault is None and self.robot is not None:
@@ -331,7 +335,8 @@ class FrankyBackend:
         try:
             self._wait(deadline, "come to rest", while_moving, until=self._at_rest)
             with self._loop_priority():
-                self.robot.move(f.JointWaypointMotion([home], self.fc.home_dynamics), asynchronous=True)
+                gentler = self._dynamics(self.fc.home_dynamics * np.asarray(self.fc.dynamics))
+                self.robot.move(f.JointWaypointMotion([home], gentler), asynchronous=True)
             self._wait(deadline, "reach home", while_moving, until=lambda: self.robot.join_motion(timeout=0))
             self._hold_at(np.asarray(q_home, float))
         except TimeoutError:

@@ -34,7 +34,7 @@ class FrankaConfig(Section):
     # franky's relative dynamics factor (velocity, acceleration, jerk) for the streamed motions; the IK
     # already bounds joint speed by robot.velocity_scale.
     dynamics: tuple[float, float, float] = (1.0, 0.3, 0.3)
-    home_dynamics: float = Field(0.15, gt=0, le=1)  # franky's dynamics factor of reset's move home
+    home_dynamics: float = Field(0.15, gt=0, le=1)  # reset's move home at this fraction of `dynamics`
     # mlockall at connect (robot_io/backends/memory_lock.py): no page fault stalls the 1 kHz loop. It needs
     # CAP_IPC_LOCK or `ulimit -l unlimited`; refused: fatal under realtime: enforce, else a warning.
     lock_memory: bool = False

@@ -71,6 +71,22 @@ def test_streamed_targets_move_and_hold_stills_the_command_within_two_periods(ba
     assert backend.fault() is None
 
 
+def test_a_hold_brakes_at_its_own_dynamics_and_leaves_the_robot_wide_factor_alone(backend):
+    """Each motion carries its own dynamics factor: a hold used to set franky's robot-wide factor to its
+    braking dynamics, and the move home after it ran at home_dynamics times those (on the rehearsal's
+    settings 0.3 x (1, 0.4, 0.3) instead of 0.3 x (1, 1, 1): ~1.5 s more per episode)."""
+    q = backend.read_state().q
+    for _ in range(5):
+        q = q + np.array([0.01, 0, 0, 0, 0, 0, 0])
+        backend.send_joint_command(q)
+        time.sleep(PERIOD)
+    backend.hold()
+    wait_until(lambda: np.max(np.abs(backend.robot.state.dq_d)) < 0.01, 5, "the hold to stop the arm")
+    factor = backend.robot.relative_dynamics_factor
+    assert (factor.velocity, factor.acceleration, factor.jerk) == (1.0, 1.0, 1.0)
+    assert backend.fault() is None
+
+
 def test_a_fault_ends_the_stream_so_the_arm_is_where_the_reflex_left_it(backend):
     """After a reflex no command runs: the state reports no command (the controller anchors on the measured
     arm) and a hold has nothing to brake, until recovery."""
