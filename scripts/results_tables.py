@@ -262,6 +262,8 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff": ("results/handoff.json", handoff),
     "handoff_headline": ("results/handoff.json", handoff_headline),
     "handoff_comparisons": ("results/handoff.json", handoff_comparisons),
+    "handoff_velocity": ("results/handoff_velocity.json", handoff),
+    "handoff_velocity_comparisons": ("results/handoff_velocity.json", handoff_comparisons),
     "handoff_start": ("results/handoff_start.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
@@ -341,6 +343,13 @@ PAGES: dict[str, Page] = {
                 "handoff_comparisons",
             ),
             ("## Figure", "handoff.png"),
+            (
+                "## The rehearsal before it took the real arm's stream (`franka_sim.yaml` with"
+                " `stream: velocity`, a 10 cm command lead and its tracking fit; `--out"
+                " results/handoff_velocity`). The franky-sim sections below ran at these settings too",
+                "handoff_velocity",
+            ),
+            ("### Against fixed H and the frozen policy", "handoff_velocity_comparisons"),
             (
                 "## Scratch on franky-sim: the start, 1000 steps (`--seeds 3 4 5 6 --steps 1000 --out"
                 " results/handoff_start`)",
