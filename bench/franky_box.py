@@ -50,9 +50,19 @@ GOALS += [(0.45, 0.25, 0.35)]
 HIGH, TABLE = (0.5, 0.0, 0.3), (0.6, 0.3, 0.0)
 HOMING_AT_Z = 0.15  # 10 cm above the box's floor, where a hand heading down still has room
 SETTINGS: dict[str, tuple[str, dict[str, Any]]] = {
-    "rehearsal (franka_sim.yaml)": ("configs/franka_sim.yaml", {}),
-    "rehearsal, command_lead_m 0.05": ("configs/franka_sim.yaml", {"command_lead_m": 0.05}),
-    "rehearsal, stream rest": ("configs/franka_sim.yaml", {"stream": "rest"}),
+    "rehearsal (franka_sim.yaml: stream rest, command_lead_m 0.05)": ("configs/franka_sim.yaml", {}),
+    "rehearsal as until 2026-12-07 (stream velocity, command_lead_m 0.1)": (
+        "configs/franka_sim.yaml",
+        {"stream": "velocity", "command_lead_m": 0.1},
+    ),
+    "rehearsal, stream velocity, command_lead_m 0.05": (
+        "configs/franka_sim.yaml",
+        {"stream": "velocity", "command_lead_m": 0.05},
+    ),
+    "rehearsal, stream rest, command_lead_m 0.1": (
+        "configs/franka_sim.yaml",
+        {"stream": "rest", "command_lead_m": 0.1},
+    ),
     "real arm's settings (franka_limits.yaml, stream rest)": ("configs/gaps/franka_limits.yaml", {}),
     "real arm's, stream velocity": ("configs/gaps/franka_limits.yaml", {"stream": "velocity"}),
     "real arm's, stream velocity, command_lead_m 0.05": (
