@@ -36,7 +36,7 @@ import importlib
 import logging
 import os
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from types import ModuleType
 from typing import Any
 
@@ -113,6 +113,12 @@ class FrankyBackend:
         self.lower = limits.lower + config.joint_margin_rad
         self.upper = limits.upper - config.joint_margin_rad
         self.period_ms = max(1, round(config.period * 1000))
+        # Each motion carries its own dynamics factor (the robot-wide one stays 1), so a hold's braking
+        # never carries over into the next motion.
+        factor = self.franky.RelativeDynamicsFactor
+        self._stream_dynamics = factor(*self.fc.dynamics)
+        self._hold_dynamics = factor(*HOLD_DYNAMICS)
+        self._home_dynamics = factor(*(self.fc.home_dynamics * d for d in self.fc.dynamics))
         if self.fc.simulated_target and target is None:
             raise ConfigError(
                 "robot.franka.simulated_target needs a scripted target: build the controller with "
@@ -244,7 +250,7 @@ class FrankyBackend:
             ]
         self._last_target = q.copy()
         self._stopping = False
-        self._move(f.JointWaypointMotion(waypoints, self._dynamics(self.fc.dynamics)))
+        self._move(f.JointWaypointMotion(waypoints, self._stream_dynamics))
 
     def hold(self) -> None:
         """Brake to rest where the *command* can stop at full deceleration. franky's JointStopMotion
@@ -274,14 +280,7 @@ class FrankyBackend:
         """Go to ``q`` and keep commanding it (the motion never ends by itself), so a held arm stays
         under position control rather than idle; the next command preempts it."""
         f = self.franky
-        self._move(
-            f.JointWaypointMotion([f.JointWaypoint(f.JointState(q))], self._dynamics(HOLD_DYNAMICS), False)
-        )
-
-    def _dynamics(self, factors: Sequence[float]) -> Any:
-        """franky's relative dynamics factor for one motion: each motion carries its own (the robot-wide
-        factor stays 1), so a hold's braking never carries over into the next motion."""
-        return self.franky.RelativeDynamicsFactor(*(float(x) for x in factors))
+        self._move(f.JointWaypointMotion([f.JointWaypoint(f.JointState(q))], self._hold_dynamics, False))
 
     def fault(self) -> Fault | None:
         if self._fault is None and self.robot is not None:
@@ -335,8 +334,7 @@ class FrankyBackend:
         try:
             self._wait(deadline, "come to rest", while_moving, until=self._at_rest)
             with self._loop_priority():
-                gentler = self._dynamics(self.fc.home_dynamics * np.asarray(self.fc.dynamics))
-                self.robot.move(f.JointWaypointMotion([home], gentler), asynchronous=True)
+                self.robot.move(f.JointWaypointMotion([home], self._home_dynamics), asynchronous=True)
             self._wait(deadline, "reach home", while_moving, until=lambda: self.robot.join_motion(timeout=0))
             self._hold_at(np.asarray(q_home, float))
         except TimeoutError:

@@ -105,7 +105,7 @@ def test_a_stalled_peer_is_noticed_within_about_a_second(endpoint):
         [
             sys.executable,
             "-c",
-            "import time\nfrom bus.transport import Bus, QueryCancelled, ZenohConfig, open_session\n"
+            "import time\nfrom bus.transport import Bus, ZenohConfig, open_session\n"
             f"b = Bus(open_session(ZenohConfig(connect=({endpoint!r},))), {name!r})\n"
             "b.declare_alive('learner'); print('up', flush=True); time.sleep(60)",
         ],
