@@ -265,6 +265,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_velocity": ("results/handoff_velocity.json", handoff),
     "handoff_velocity_comparisons": ("results/handoff_velocity.json", handoff_comparisons),
     "handoff_start": ("results/handoff_start.json", handoff),
+    "handoff_rest_lead01": ("results/handoff_rehearsal_rest_lead01.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
     "handoff_hmax20": ("results/handoff_hmax20.json", handoff),
@@ -350,6 +351,12 @@ PAGES: dict[str, Page] = {
                 "handoff_velocity",
             ),
             ("### Against fixed H and the frozen policy", "handoff_velocity_comparisons"),
+            (
+                "## The rehearsal's stream with a 10 cm command lead (tried, not adopted: `command_lead_m:"
+                " 0.1` and its tracking fit, `results/handoff_rehearsal_rest_lead01/reach_model.json`;"
+                " `--out results/handoff_rehearsal_rest_lead01`)",
+                "handoff_rest_lead01",
+            ),
             (
                 "## Scratch on franky-sim: the start, 1000 steps (`--seeds 3 4 5 6 --steps 1000 --out"
                 " results/handoff_start`)",
