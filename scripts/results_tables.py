@@ -266,6 +266,7 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_velocity_comparisons": ("results/handoff_velocity.json", handoff_comparisons),
     "handoff_start": ("results/handoff_start.json", handoff),
     "handoff_rest_lead01": ("results/handoff_rehearsal_rest_lead01.json", handoff),
+    "handoff_sigma005": ("results/handoff_rehearsal_sigma005.json", handoff),
     "handoff_anneal4000": ("results/handoff_anneal4000.json", handoff),
     "handoff_schedule10000": ("results/handoff_schedule10000.json", handoff),
     "handoff_hmax20": ("results/handoff_hmax20.json", handoff),
@@ -356,6 +357,11 @@ PAGES: dict[str, Page] = {
                 " 0.1` and its tracking fit, `results/handoff_rehearsal_rest_lead01/reach_model.json`;"
                 " `--out results/handoff_rehearsal_rest_lead01`)",
                 "handoff_rest_lead01",
+            ),
+            (
+                "## The rehearsal with the exploration ending at half the mock's (tried, not adopted: `--agent"
+                " sigma_final=0.05 --out results/handoff_rehearsal_sigma005`)",
+                "handoff_sigma005",
             ),
             (
                 "## Scratch on franky-sim: the start, 1000 steps (`--seeds 3 4 5 6 --steps 1000 --out"
