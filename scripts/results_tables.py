@@ -359,8 +359,8 @@ PAGES: dict[str, Page] = {
                 "handoff_rest_lead01",
             ),
             (
-                "## The rehearsal with the exploration ending at half the mock's (tried, not adopted: `--agent"
-                " sigma_final=0.05 --out results/handoff_rehearsal_sigma005`)",
+                "## The rehearsal with the exploration ending at half the mock's (tried, not adopted:"
+                " `--agent sigma_final=0.05 --out results/handoff_rehearsal_sigma005`)",
                 "handoff_sigma005",
             ),
             (
