@@ -3,22 +3,11 @@ reads the gap only in ticks that played an action."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from bench_scripts import load_bench
 
 from bus import messages as m
 from tasks.reach import reach_observation
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def load_bench():
-    spec = importlib.util.spec_from_file_location("command_lag_bench", ROOT / "bench" / "command_lag.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def state_record(ee_pos: list[float], ee_cmd: list[float], played_index: int) -> tuple:
@@ -36,7 +25,7 @@ def episode_end(step: int, episode: int, commanded: list[float], hand: list[floa
 
 
 def test_misses_with_the_command_on_target_are_told_apart_and_only_played_ticks_count():
-    bench = load_bench()
+    bench = load_bench("command_lag")
     records = [
         state_record([0.0, 0.0, 0.3], [0.05, 0.0, 0.3], played_index=3),  # at the 5 cm cap
         state_record([0.0, 0.0, 0.3], [0.01, 0.0, 0.3], played_index=4),
