@@ -110,6 +110,11 @@ def _arm_parts(cfg: dict, arm: str, directory: Path, ready, token: str):
     return robot, actor
 
 
+def _plans(op: Operator, arm: str) -> list[m.Transition]:
+    """The arm's transitions that played a plan's action (a hold's carries no prediction)."""
+    return [t for t in op.of_arm(arm) if t.predicted]
+
+
 def test_a_late_arm_plays_the_newest_snapshot_a_dead_arm_leaves_the_other_going_and_stops_obey_scope(
     tmp_path,
 ):
@@ -133,10 +138,11 @@ def test_a_late_arm_plays_the_newest_snapshot_a_dead_arm_leaves_the_other_going_
         with robot0, actor0:
             before = op.newest_snapshot()
             robot1, actor1 = _arm_parts(
-                cfg, "arm1", tmp_path, lambda: op.wait(lambda: op.of_arm("arm1"), 60, "arm1's ticks"), token
+                cfg, "arm1", tmp_path, lambda: op.wait(lambda: _plans(op, "arm1"), 60, "arm1's plans"), token
             )
             with robot1, actor1 as arm1_actor:
-                first = op.of_arm("arm1")[0]
+                # Its first plan (a tick before it, while the offered snapshot loads, holds the arm: no plan).
+                first = _plans(op, "arm1")[0]
                 assert first.policy_version >= before > 0  # its first plan: the newest policy, not an empty
                 # arm1's actor dies: the learner closes its open segment; arm0 goes on untouched.
                 stream1 = first.stream
