@@ -43,7 +43,7 @@ def played_gaps(records: list) -> np.ndarray:
 
 
 def episode_ends(records: list) -> list[m.Transition]:
-    """Each whole episode's last transition (each tick once), in episode order."""
+    """Each episode's last recorded transition (each tick once), in episode order."""
     recorded = [m.Transition.FromString(d) for t, _, _, d in records if t.endswith("/" + m.TRANSITIONS.name)]
     last: dict[int, m.Transition] = {}
     for t in recording.each_tick_once(recorded):

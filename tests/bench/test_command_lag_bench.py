@@ -30,7 +30,7 @@ def test_misses_with_the_command_on_target_are_told_apart_and_only_played_ticks_
         state_record([0.0, 0.0, 0.3], [0.05, 0.0, 0.3], played_index=3),  # at the 5 cm cap
         state_record([0.0, 0.0, 0.3], [0.01, 0.0, 0.3], played_index=4),
         state_record([0.0, 0.0, 0.3], [0.30, 0.0, 0.3], played_index=-1),  # held: not read
-        episode_end(1, 0, [0.3, 0.0, 0.0], [0.3, 0.0, 0.0]),  # first half: not read
+        episode_end(1, 0, [0.3, 0.0, 0.0], [0.3, 0.0, 0.0]),  # before the last 3 episodes: not read
         episode_end(2, 1, [0.01, 0.0, 0.0], [0.06, 0.0, 0.0]),  # the command there, the hand 6 cm behind
         episode_end(2, 1, [0.01, 0.0, 0.0], [0.06, 0.0, 0.0]),  # sent again: counted once
         episode_end(3, 2, [0.2, 0.0, 0.0], [0.2, 0.0, 0.0]),  # both far
