@@ -4,7 +4,7 @@ reads the gap only in ticks that played an action."""
 from __future__ import annotations
 
 import numpy as np
-from bench_scripts import load_bench
+from repo_scripts import load_script
 
 from bus import messages as m
 from tasks.reach import reach_observation
@@ -25,7 +25,7 @@ def episode_end(step: int, episode: int, commanded: list[float], hand: list[floa
 
 
 def test_misses_with_the_command_on_target_are_told_apart_and_only_played_ticks_count():
-    bench = load_bench("command_lag")
+    bench = load_script("bench/command_lag.py")
     records = [
         state_record([0.0, 0.0, 0.3], [0.05, 0.0, 0.3], played_index=3),  # at the 5 cm cap
         state_record([0.0, 0.0, 0.3], [0.01, 0.0, 0.3], played_index=4),

@@ -3,13 +3,13 @@ of such a run."""
 
 from __future__ import annotations
 
-from bench_scripts import load_bench
+from repo_scripts import load_script
 
 from monitor import recording
 
 
 def test_a_run_short_of_the_goal_keeps_every_part_of_its_recording(tmp_path, monkeypatch):
-    bench = load_bench("handoff")
+    bench = load_script("bench/handoff.py")
     monkeypatch.setattr(bench, "ROOT", tmp_path)
     monkeypatch.setattr(bench, "SHORT", tmp_path / "runs" / "handoff_short")
     first = tmp_path / "rec" / "run.mcap"
@@ -28,7 +28,7 @@ def test_a_run_short_of_the_goal_keeps_every_part_of_its_recording(tmp_path, mon
 
 
 def test_a_run_that_met_the_goal_keeps_nothing(tmp_path, monkeypatch):
-    bench = load_bench("handoff")
+    bench = load_script("bench/handoff.py")
     monkeypatch.setattr(bench, "SHORT", tmp_path / "short")
     kept = bench.keep_if_short({"success_by_quarter": [0.3, 0.8, 0.9, 0.9]}, [], "slow_arm", "handoff", 0)
     assert kept is None and not (tmp_path / "short").exists()
@@ -37,7 +37,7 @@ def test_a_run_that_met_the_goal_keeps_nothing(tmp_path, monkeypatch):
 def test_runs_of_another_length_or_agent_are_named_not_mixed(tmp_path):
     """One --out folder holds runs of one length and one set of --agent keys: the bench names the others
     before running any."""
-    bench = load_bench("handoff")
+    bench = load_script("bench/handoff.py")
     runs = {"scratch_s0": '{"steps": 6000}', "scratch_s1": '{"steps": 1000}'}
     runs["handoff_s0"] = '{"steps": 6000, "agent": {"h_max": 20}}'
     for name, text in runs.items():
@@ -55,7 +55,7 @@ def test_runs_of_another_length_or_agent_are_named_not_mixed(tmp_path):
 
 def test_the_handoff_is_compared_on_the_seeds_both_starts_ran():
     """Success rates pooled over the shared seeds' episodes (a quarter: episodes // 4 of them)."""
-    bench = load_bench("handoff")
+    bench = load_script("bench/handoff.py")
     run = {"setting": "slow_arm", "episodes": 120}
     runs = [
         run | {"variant": "handoff", "seed": 0, "success_by_quarter": [1.0, 0.9, 0.9, 0.8]},
@@ -87,7 +87,7 @@ def test_the_hand_outside_the_workspace_box_is_counted_by_how_far():
             ("arm/state", "RobotState", 0, m.RobotState(ee_pos=h, played_index=-1).SerializeToString())
         )
     records.append(("arm/target", "Target", 0, b"not a state"))
-    out = load_bench("handoff").hand_outside_box(records, [0.2, -0.45, 0.05], [0.8, 0.45, 0.7])
+    out = load_script("bench/handoff.py").hand_outside_box(records, [0.2, -0.45, 0.05], [0.8, 0.45, 0.7])
     assert out == {
         "hand_outside_box_share": 0.5,
         "hand_outside_box_max_m": 0.05,
