@@ -6,9 +6,11 @@ cycle is lost and extrapolated, 20 lost in a row are a ``communication_constrain
 motion limits (position, velocity, acceleration and jerk of the commanded signal: a violation is a
 ``*_discontinuity`` reflex), both enforced here. The stack is the real one: robot-io's node (its
 controller, IK and franky backend, connected to franka-sim on a loopback address) runs in this process,
-so the robot state libfranka receives can be sampled, and ``adaptiveh learn`` runs as its own process
-with ``configs/franka_sim.yaml``'s learner (AdaptiveH on the reach task against robot-io's scripted
-target), sending its chunks over Zenoh. Any fault is counted and released as an operator would, so the
+so the robot state libfranka receives can be sampled, and ``adaptiveh learn`` (and ``adaptiveh act``, the
+actor beside robot-io, in the default execution) run as their own processes with
+``configs/franka_sim.yaml``'s learner (AdaptiveH on the reach task against robot-io's scripted target, read
+from the simulator's truth: vision is not run), sending plans over Zenoh; no plan within FIRST_CHUNK_S is
+an error, not a quiet run. Any fault is counted and released as an operator would, so the
 run goes on.
 
 Reported: reflexes (franka-sim's aborts, and the faults robot-io saw), ``control_command_success_rate``
@@ -52,14 +54,17 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the tests' franka-sim launche
 from franka_simulators import FrankaSimServer, franky_sim_fr3_urdf  # noqa: E402
 
 from common.proc_status import status_field  # noqa: E402
-from deploy.config import compose_stack_yaml, load_stack_config  # noqa: E402
+from deploy.config import StackConfig, compose_stack_yaml, load_stack_config  # noqa: E402
 from deploy.robot_io_node import RobotIONode  # noqa: E402
+from learner.segments import Execution  # noqa: E402
 from robot_io.backends.franky_config import FrankaConfig  # noqa: E402
 from robot_io.backends.franky_model import ModelMismatch  # noqa: E402
 from robot_io.config import RobotConfig  # noqa: E402
 
 HOST = "127.0.0.64"  # franka-sim's loopback address (libfranka always dials port 1337)
 SAMPLE_HZ = 100.0
+LISTED = 40  # reflexes and faults listed one by one (all are counted)
+FIRST_CHUNK_S = 120.0  # the learner's start and first snapshot take ~10-20 s; none by then is a failure
 
 
 def fifo_threads() -> list[int]:
@@ -208,6 +213,10 @@ def stack_config(args: argparse.Namespace, tmp: Path) -> Path:
         checkpoint_dir=str(tmp / "learner"),
         checkpoint_every=10**9,
     )
+    # The arm's command stream is measured, not vision: the target is the simulator's truth, the CPU the
+    # 1 kHz loop's.
+    cfg["learner"]["target_topic"] = "sim/target_truth"
+    cfg["vision"] = None
     cfg.pop("monitor", None)
     cfg.pop("recording", None)
     path = tmp / "franka_sim_stream.yaml"
@@ -307,6 +316,38 @@ class Disturbance(threading.Thread):
                     self.times.append((t, time.monotonic() - t))
 
 
+def part_names(cfg: StackConfig) -> list[str]:
+    """The learner, and the actor beside robot-io when the config's execution is the actor's (without it
+    nothing would send a plan)."""
+    return ["learn"] + (["act"] if cfg.learner.execution == Execution.ACTOR else [])
+
+
+def start_parts(cfg: StackConfig, cfg_path: Path, tmp: Path) -> dict[str, subprocess.Popen]:
+    """``part_names``, each its own process logging to ``tmp``."""
+    parts = {}
+    for name in part_names(cfg):
+        cmd = [sys.executable, "-m", "deploy.cli", name, "--config", str(cfg_path), "--log-level", "WARNING"]
+        with (tmp / f"{name}.log").open("w") as log:
+            parts[name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
+    return parts
+
+
+def stop_parts(parts: dict[str, subprocess.Popen]) -> None:
+    for proc in parts.values():
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in parts.values():
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def part_log(tmp: Path, part: str) -> str:
+    return (tmp / f"{part}.log").read_text()
+
+
 def vm_locked_kb() -> int:
     """This process's locked memory (``mlockall`` by franka.lock_memory), from /proc/self/status."""
     return int(status_field("VmLck") or 0)
@@ -331,21 +372,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             f"franka-sim on {args.host}:1337 (communication constraints and motion limits enforced)",
             flush=True,
         )
-        node = learner = None
+        node, parts = None, {}
         try:
             node = RobotIONode(cfg)  # connects robot-io's franky backend to franka-sim (model check passes)
             counts = Counts(node)
             sampler = Sampler(node)
             node.start()
             sampler.start()
-            log = open(tmp / "learner.log", "w")
-            cli = [sys.executable, "-m", "deploy.cli"]
-            learner = subprocess.Popen(
-                [*cli, "learn", "--config", str(cfg_path), "--log-level", "WARNING"],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                cwd=ROOT,
-            )
+            parts = start_parts(cfg, cfg_path, tmp)
             t0 = time.monotonic()
             releases = 0
             disturbance = Disturbance(args.disturb_s) if args.disturb_s > 0 else None
@@ -353,8 +387,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 disturbance.start()
             next_report = t0 + args.report_s
             while (now := time.monotonic()) - t0 < total:
-                if learner.poll() is not None:
-                    raise RuntimeError("the learner exited:\n" + (tmp / "learner.log").read_text()[-3000:])
+                for part, proc in parts.items():
+                    if proc.poll() is not None:
+                        raise RuntimeError(f"adaptiveh {part} exited:\n" + part_log(tmp, part)[-3000:])
+                if counts.chunks == 0 and now - t0 > FIRST_CHUNK_S:
+                    logs = "\n".join(f"-- {part}:\n{part_log(tmp, part)[-1500:]}" for part in parts)
+                    raise RuntimeError(f"no chunk reached robot-io in {FIRST_CHUNK_S:.0f} s:\n{logs}")
                 if node.controller.safety.mode == "fault":  # the operator's release: recover, go on
                     time.sleep(0.5)
                     node.controller.operator("release")
@@ -370,21 +408,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 disturbance.join(timeout=120)
             fifo_robot_io = fifo_threads()
             locked_kb = vm_locked_kb()
-            learner.terminate()
-            try:
-                learner.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                learner.kill()
+            stop_parts(parts)
             sampler.stop.set()
             sampler.join(timeout=5)
             time.sleep(2 * server.stats_period_s)  # franka-sim's last counts
             stats = dict(server.stats)
-            learner_log = (tmp / "learner.log").read_text()
+            learner_log = part_log(tmp, "learn")
         finally:
-            if learner is not None:
-                log.close()
-            if learner is not None and learner.poll() is None:
-                learner.kill()
+            stop_parts(parts)
             if node is not None:
                 node.stop()
                 node.close()
@@ -417,8 +448,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if model_check["accepted"]
         else "franky-sim's fr3_clean.urdf (franka-sim's own is refused by the model check, below)",
         "model_check_franka_sim_urdf": model_check,
-        "route": "robot-io node (controller, IK, franky backend) in the bench process; `adaptiveh learn` "
-        f"as its own process ({args.config}: AdaptiveH, reach task, chunks over Zenoh)",
+        "route": "robot-io node (controller, IK, franky backend) in the bench process; "
+        + " and ".join(f"`adaptiveh {part}`" for part in parts)
+        + f" each its own process ({args.config}: AdaptiveH, reach task, plans over Zenoh; the target the"
+        " simulator's truth, no vision)",
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "load": os.getloadavg()},
         "scheduling": f"franka-sim SCHED_FIFO {args.sim_fifo_priority} (0: SCHED_OTHER); robot-io: "
         f"{len(fifo_robot_io)} SCHED_FIFO threads (priorities {sorted(set(fifo_robot_io))}: franky's 1 kHz "
@@ -426,7 +459,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "memory_locked_kb": locked_kb,  # VmLck of the robot-io process (robot.franka.lock_memory)
         "wall_clock_s": round(wall, 1),
         "reflexes": len(reflexes),
-        "reflex_reasons": [{"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes],
+        "reflex_kinds": dict(Counter(r["reason"].split(":")[0] for r in reflexes).most_common()),
+        "reflex_reasons": [
+            {"t_s": round(r["time"] - t_server0, 1), "reason": r["reason"]} for r in reflexes[:LISTED]
+        ],
         "faults_seen_by_robot_io": [
             {
                 "t_s": round(t, 1),
@@ -434,7 +470,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 "s_after_resume": counts.since(counts.resumes, t + t0),
                 "detail": d.splitlines()[0],
             }
-            for t, _, d in faults
+            for t, _, d in faults[:LISTED]
         ],
         "brakes": len(counts.holds),
         "resumes_after_brake": len(counts.resumes),
@@ -501,7 +537,7 @@ def main() -> int:
         f"{r['stack']['actions_played']} actions played, {r['stack']['resets']} resets)"
     )
     print(
-        f"  reflexes: {r['reflexes']}"
+        f"  reflexes: {r['reflexes']} {r['reflex_kinds']}"
         + "".join(f"\n    {x['t_s']} s: {x['reason']}" for x in r["reflex_reasons"])
     )
     print(

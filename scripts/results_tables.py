@@ -273,6 +273,8 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
     "handoff_hmax20_comparisons": ("results/handoff_hmax20.json", handoff_comparisons),
     "handoff_corrected": ("results/handoff_corrected.json", handoff),
     "handoff_corrected_comparisons": ("results/handoff_corrected.json", handoff_comparisons),
+    "handoff_franka_limits_sim_box": ("results/handoff_franka_limits_sim_box.json", handoff),
+    "handoff_franka_limits_sim_box_rerun": ("results/handoff_franka_limits_sim_box_rerun.json", handoff),
     "fleet": ("results/fleet.json", fleet),
     "fleet_goals": ("results/fleet.json", fleet_goals),
     "plans_default": ("results/plans/summary.json", partial(plans_point, method="adaptiveh-default")),
@@ -390,6 +392,17 @@ PAGES: dict[str, Page] = {
                 "handoff_corrected",
             ),
             ("### Against fixed H at its mean H", "handoff_corrected_comparisons"),
+            (
+                "## The real arm's settings with the simulator's workspace box (`franka_limits.yaml` until"
+                " 2026-12-08; on franka-sim its policy folded the arm onto itself; `--out"
+                " results/handoff_franka_limits_sim_box`)",
+                "handoff_franka_limits_sim_box",
+            ),
+            (
+                "### The same, seed 0 again at the code of 2026-12-08 (each franky motion its own dynamics"
+                " factor; `--seeds 0 --out results/handoff_franka_limits_sim_box_rerun`)",
+                "handoff_franka_limits_sim_box_rerun",
+            ),
         ),
         "../handoff.md#results",
     ),
